@@ -1,0 +1,148 @@
+"""Wahba's problem: the attitude that best maps measured directions onto catalog directions.
+
+Solved by the SVD method (Markley 1988), batched over many independent problems (one per exposure
+instant of a multi-exposure frame) with one ``numpy.linalg.svd`` call. Covariance by Shuster's QUEST
+measurement model: each unit vector measured with isotropic angular noise σ_i gives
+
+    P = [ Σ σ_i⁻² (I − b_i b_iᵀ) ]⁻¹          (rad², in the measurement frame)
+
+the covariance of the small rotation vector δθ with ``q_true = q_est ⊗ δq(δθ)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from startracker.rotations import as_float_array, quat_from_matrix
+
+__all__ = ["WahbaSolution", "solve_wahba", "solve_wahba_batch", "RAD_TO_ARCSEC"]
+
+RAD_TO_ARCSEC = 180.0 / np.pi * 3600.0
+
+
+@dataclass(frozen=True)
+class WahbaSolution:
+    """Result of one Wahba solve.
+
+    Attributes
+    ----------
+    success : bool
+        False when fewer than two non-parallel vectors were given.
+    q_meas_to_ref : ndarray, shape (4,)
+        (w, x, y, z) rotation from the measurement frame (camera or body) to the reference frame
+        (ICRS): ``v_ref ≈ R(q) @ v_meas``. Identity when not successful.
+    residual_rms_arcsec : float
+        RMS angle between each reference vector and its rotated measurement.
+    covariance_rad2 : ndarray, shape (3, 3)
+        Covariance of the attitude error rotation vector in the measurement frame. Infinite diagonal
+        when not successful.
+    n_vectors : int
+    status : str
+        "ok", or why it failed.
+    """
+
+    success: bool
+    q_meas_to_ref: np.ndarray
+    residual_rms_arcsec: float
+    covariance_rad2: np.ndarray
+    n_vectors: int
+    status: str = "ok"
+
+
+def _check_pairs(v_meas, v_ref, name_meas="v_meas", name_ref="v_ref"):
+    b = as_float_array(v_meas, name_meas, last_dim=3)
+    r = as_float_array(v_ref, name_ref, last_dim=3)
+    if b.shape != r.shape:
+        raise ValueError(f"{name_meas} and {name_ref} must have the same shape, got {b.shape} and {r.shape}")
+    nb = np.linalg.norm(b, axis=-1, keepdims=True)
+    nr = np.linalg.norm(r, axis=-1, keepdims=True)
+    if np.any(nb == 0) or np.any(nr == 0):
+        raise ValueError(f"{name_meas} and {name_ref} must not contain zero vectors")
+    return b / nb, r / nr
+
+
+def solve_wahba_batch(v_meas, v_ref, sigma_rad, mask=None):
+    """Solve many Wahba problems at once.
+
+    Parameters
+    ----------
+    v_meas : array_like, shape (B, K, 3)
+        Measured directions (camera/body frame), any norm > 0.
+    v_ref : array_like, shape (B, K, 3)
+        Matching reference (ICRS) directions.
+    sigma_rad : float or array_like, broadcastable to (B, K)
+        Angular noise (1σ, rad) of each measured direction; weights are σ⁻².
+    mask : array_like of bool, shape (B, K), optional
+        Which pairs take part (padding for problems with fewer vectors).
+
+    Returns
+    -------
+    q : ndarray, shape (B, 4)
+        ``q_meas_to_ref`` per problem (identity where it failed).
+    covariance_rad2 : ndarray, shape (B, 3, 3)
+    residual_rms_arcsec : ndarray, shape (B,)
+    ok : ndarray of bool, shape (B,)
+        At least two used vectors that are not parallel.
+    """
+    b, r = _check_pairs(v_meas, v_ref)
+    if b.ndim != 3:
+        raise ValueError(f"v_meas must have shape (B, K, 3), got {b.shape}")
+    sigma = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), b.shape[:2])
+    if not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
+        raise ValueError("sigma_rad must be positive and finite")
+    m = np.ones(b.shape[:2], dtype=bool) if mask is None else np.broadcast_to(np.asarray(mask, dtype=bool), b.shape[:2])
+    w = np.where(m, sigma**-2, 0.0)
+    attitude_profile = np.einsum("bk,bki,bkj->bij", w, r, b)
+    u, _, vt = np.linalg.svd(attitude_profile)
+    d = np.linalg.det(u) * np.linalg.det(vt)
+    u[:, :, 2] *= d[:, None]
+    rot = u @ vt
+    # Fisher information of the rotation error in the measurement frame.
+    eye = np.eye(3)
+    info = np.einsum("bk,ij->bij", w, eye) - np.einsum("bk,bki,bkj->bij", w, b, b)
+    n_used = m.sum(axis=1)
+    # Two or more non-parallel directions make the information matrix full rank.
+    eig_min = np.linalg.eigvalsh(info)[:, 0]
+    scale = np.maximum(w.sum(axis=1), 1e-300)
+    ok = (n_used >= 2) & (eig_min > 1e-10 * scale)
+    cov = np.full((len(b), 3, 3), 0.0)
+    cov[ok] = np.linalg.inv(info[ok])
+    cov[~ok] = np.diag([np.inf, np.inf, np.inf])
+    rot[~ok] = eye
+    q = quat_from_matrix(rot)
+    rb = np.einsum("bij,bkj->bki", rot, b)
+    ang = np.arctan2(np.linalg.norm(np.cross(rb, r), axis=-1), np.sum(rb * r, axis=-1))
+    rms = np.sqrt(np.sum(np.where(m, ang**2, 0.0), axis=1) / np.maximum(n_used, 1)) * RAD_TO_ARCSEC
+    return q, cov, rms, ok
+
+
+def solve_wahba(v_meas, v_ref, sigma_rad=1e-5) -> WahbaSolution:
+    """Attitude from matched measured and reference unit vectors.
+
+    Parameters
+    ----------
+    v_meas : array_like, shape (K, 3)
+        Measured directions in the camera or body frame.
+    v_ref : array_like, shape (K, 3)
+        The same stars' catalog directions in ICRS.
+    sigma_rad : float or array_like, shape (K,)
+        1σ angular noise of each measured direction in rad (default 1e-5 rad ≈ 2″).
+
+    Returns
+    -------
+    WahbaSolution
+        ``success=False`` with a status for fewer than 2 vectors or parallel vectors.
+    """
+    b = as_float_array(v_meas, "v_meas", last_dim=3, ndim=2)
+    r = as_float_array(v_ref, "v_ref", last_dim=3, ndim=2)
+    if len(b) != len(r):
+        raise ValueError(f"v_meas and v_ref must have the same length, got {len(b)} and {len(r)}")
+    if len(b) < 2:
+        return WahbaSolution(False, np.array([1.0, 0, 0, 0]), np.inf, np.diag([np.inf] * 3), len(b), "fewer than 2 vectors")
+    sig = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), (len(b),))
+    q, cov, rms, ok = solve_wahba_batch(b[None], r[None], sig[None])
+    if not ok[0]:
+        return WahbaSolution(False, q[0], np.inf, cov[0], len(b), "vectors are parallel: attitude not observable")
+    return WahbaSolution(True, q[0], float(rms[0]), cov[0], len(b))

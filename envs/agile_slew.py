@@ -1,0 +1,349 @@
+"""Gymnasium environments: agile slews and attitude hold of a MuJoCo spacecraft closed-loop with a star tracker."""
+
+from __future__ import annotations
+
+import numpy as np
+import gymnasium as gym
+from gymnasium import spaces
+
+from envs.avionics import Avionics, AvionicsConfig, TRACKER_MODES
+from envs.spacecraft import Spacecraft
+from startracker.rotations import (
+    quat_angle_between,
+    quat_conjugate,
+    quat_from_rotvec,
+    quat_multiply,
+    quat_normalize,
+    quat_random,
+    quat_to_rotvec,
+)
+
+__all__ = ["AgileSlewEnv"]
+
+
+class AgileSlewEnv(gym.Env):
+    r"""## Description
+
+    A free-floating spacecraft (MuJoCo, RK4) with four reaction wheels must slew from a random attitude to a random
+    target attitude, as fast as its wheels allow (rates up to about 20°/s), and settle there. The controller never
+    sees the truth: its observation comes from the avionics chain that runs inside every step,
+
+    * a star tracker that renders each camera frame from the true attitude history (multi-exposure: N exposures per
+      frame give N attitudes per frame, N chosen from the angular rate), detects and centroids the stars
+      (``fidelity="centroid"``: detections drawn from the scene truth with the pixel path's error model;
+      ``fidelity="pixel"``: sparse rendering and centroiding), identifies them with no prior when lost, then tracks
+      them with the double k-vector lookup table;
+    * a gyro (bias, Gauss-Markov drift, angle and rate random walk, scale factor, saturation);
+    * a multiplicative EKF (filterpy) that fuses every attitude sample at its exposure timestamp with the gyro.
+
+    ``info`` reports what the star tracker achieved: the attitude update rate and the star-matching latency (wall
+    clock of prediction and matching), as well as the true and estimated attitudes.
+
+    The task ``"hold"`` (id ``startracker/AttitudeHold-v0``) keeps an inertial target under a disturbance torque.
+
+    ## Action Space
+
+    ``Box(-1, 1, (n_wheels,), float32)``: wheel motor torque commands, scaled by ``wheel_max_torque_Nm``. Values
+    outside [-1, 1] are clipped; NaN or inf raises ``ValueError`` without touching the state.
+
+    | Num | Action                        | Min | Max | Unit                      |
+    |-----|-------------------------------|-----|-----|---------------------------|
+    | 0-3 | torque command of wheel i     | -1  | 1   | fraction of max torque    |
+
+    ## Observation Space
+
+    ``Box(float32)`` with finite bounds, nothing from truth:
+
+    | Num     | Observation                                                  | Min  | Max | Unit         |
+    |---------|--------------------------------------------------------------|------|-----|--------------|
+    | 0-2     | estimated attitude error to the target, rotation vector, body | -π   | π   | rad          |
+    | 3-5     | estimated body rate (gyro minus estimated bias)              | -max | max | rad/s        |
+    | 6-9     | wheel momentum / wheel momentum capacity (tachometers)       | -1   | 1   | -            |
+    | 10-12   | tracker mode one-hot: lost, acquire, track                   | 0    | 1   | -            |
+    | 13      | EKF attitude 1σ (largest axis), clipped                      | 0    | π   | rad          |
+
+    ``env.unwrapped.observation_layout`` names these slices. ``max`` is the gyro's measurement range.
+
+    ## Rewards
+
+    ``reward = reward_pointing + reward_effort + reward_settle`` with, from the true attitude error θ (rad),
+    ``reward_pointing = -w_pointing · θ · dt``, ``reward_effort = -w_effort · mean(a²) · dt`` and
+    ``reward_settle = +w_settle · dt`` while θ is within ``settle_tolerance_deg``. Each term is also in
+    ``info["reward_*"]``.
+
+    ## Starting State
+
+    Attitude uniformly random; target at a random angle in ``slew_angle_deg_range`` about a random axis; body at
+    rest with wheels at rest (``slew``), or a small random rate (``hold``). The star tracker starts lost and the
+    first frame is taken at reset, so the first observation already carries an estimate if identification works.
+
+    ## Episode End
+
+    Terminated when the true pointing error has stayed within ``settle_tolerance_deg`` and the true rate within
+    ``settle_rate_deg_s`` for ``settle_hold_s`` (``slew`` only); truncated after ``max_episode_s``.
+
+    ## Arguments
+
+    | Argument | Default | Meaning |
+    |---|---|---|
+    | ``task`` | ``"slew"`` | ``"slew"`` or ``"hold"`` |
+    | ``control_period_s`` | 0.1 | time between actions, s |
+    | ``camera`` | ``"paper000"`` | camera preset (``paper000``, ``zy3``, ``paper003``, ``paper004``) |
+    | ``frame_rate_hz`` | 10.0 | camera frame rate; the frame period must be a multiple of ``control_period_s`` or divide it |
+    | ``exposure_mode`` | ``"multi"`` | ``"single"`` or ``"multi"`` |
+    | ``n_exposures`` | ``"adaptive"`` | N per multi-exposure frame: ``"adaptive"`` (from the rate) or an int 1..21 |
+    | ``identify_method`` | ``"pyramid"`` | lost-in-space method: ``pyramid``, ``voting``, ``brightness``, ``string`` |
+    | ``matcher`` | ``"dkvlut"`` | tracking matcher: ``dkvlut``, ``brute``, ``kdtree`` |
+    | ``fidelity`` | ``"centroid"`` | ``"centroid"`` (fast) or ``"pixel"`` (rendered windows, centroiding) |
+    | ``gyro_grade`` | ``"tactical"`` | ``ideal``, ``navigation``, ``tactical``, ``industrial`` |
+    | ``mag_limit`` | 6.0 | catalog limit, V |
+    | ``inertia_kg_m2`` | (5, 6, 4) | spacecraft inertia, diagonal or 3×3, kg m² |
+    | ``n_wheels`` | 4 | 3 (orthogonal) or 4 (pyramid) |
+    | ``wheel_max_torque_Nm`` | 0.5 | wheel torque limit, N m |
+    | ``wheel_max_speed_rad_s`` | 600 | wheel speed limit, rad/s |
+    | ``max_rate_deg_s`` | 20 | rate limit given to controllers (``controller_spec``), °/s |
+    | ``slew_angle_deg_range`` | (30, 180) | target slew angle range, ° |
+    | ``settle_tolerance_deg`` | 0.05 | pointing tolerance for settling, ° |
+    | ``settle_rate_deg_s`` | 0.05 | rate tolerance for settling, °/s |
+    | ``settle_hold_s`` | 2.0 | time within tolerance that ends the episode, s |
+    | ``max_episode_s`` | 120 | time limit, s |
+    | ``disturbance_torque_Nm`` | 0 (slew), 1e-3 (hold) | constant inertial disturbance torque magnitude, N m |
+    | ``w_pointing``, ``w_effort``, ``w_settle`` | 1, 0.01, 1 | reward weights |
+    | ``render_mode`` | None | ``"rgb_array"``: the last star image with detections marked |
+
+    ## Version History
+
+    * v0: first release.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        *,
+        task: str = "slew",
+        control_period_s: float = 0.1,
+        camera: str = "paper000",
+        frame_rate_hz: float = 10.0,
+        exposure_mode: str = "multi",
+        n_exposures: int | str = "adaptive",
+        identify_method: str = "pyramid",
+        matcher: str = "dkvlut",
+        fidelity: str = "centroid",
+        gyro_grade: str = "tactical",
+        mag_limit: float = 6.0,
+        inertia_kg_m2=(5.0, 6.0, 4.0),
+        n_wheels: int = 4,
+        wheel_max_torque_Nm: float = 0.5,
+        wheel_max_speed_rad_s: float = 600.0,
+        max_rate_deg_s: float = 20.0,
+        slew_angle_deg_range: tuple[float, float] = (30.0, 180.0),
+        settle_tolerance_deg: float = 0.05,
+        settle_rate_deg_s: float = 0.05,
+        settle_hold_s: float = 2.0,
+        max_episode_s: float = 120.0,
+        disturbance_torque_Nm: float | None = None,
+        w_pointing: float = 1.0,
+        w_effort: float = 0.01,
+        w_settle: float = 1.0,
+        render_mode: str | None = None,
+    ):
+        if task not in ("slew", "hold"):
+            raise ValueError(f"task must be 'slew' or 'hold', got {task!r}")
+        for name, value in (
+            ("control_period_s", control_period_s),
+            ("frame_rate_hz", frame_rate_hz),
+            ("max_rate_deg_s", max_rate_deg_s),
+            ("settle_tolerance_deg", settle_tolerance_deg),
+            ("settle_rate_deg_s", settle_rate_deg_s),
+            ("max_episode_s", max_episode_s),
+        ):
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        if not np.isfinite(settle_hold_s) or settle_hold_s < 0:
+            raise ValueError(f"settle_hold_s must be >= 0, got {settle_hold_s!r}")
+        lo, hi = (float(v) for v in slew_angle_deg_range)
+        if not (0.0 <= lo <= hi <= 180.0):
+            raise ValueError(f"slew_angle_deg_range must satisfy 0 <= lo <= hi <= 180, got {slew_angle_deg_range!r}")
+        for name, value in (("w_pointing", w_pointing), ("w_effort", w_effort), ("w_settle", w_settle)):
+            if not np.isfinite(value) or value < 0:
+                raise ValueError(f"{name} must be >= 0, got {value!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        if disturbance_torque_Nm is None:
+            disturbance_torque_Nm = 1e-3 if task == "hold" else 0.0
+        if not np.isfinite(disturbance_torque_Nm) or disturbance_torque_Nm < 0:
+            raise ValueError(f"disturbance_torque_Nm must be >= 0, got {disturbance_torque_Nm!r}")
+
+        self.task = task
+        self.control_period_s = float(control_period_s)
+        self.slew_angle_deg_range = (lo, hi)
+        self.settle_tolerance_rad = np.radians(settle_tolerance_deg)
+        self.settle_rate_rad_s = np.radians(settle_rate_deg_s)
+        self.settle_hold_s = float(settle_hold_s)
+        self.max_episode_s = float(max_episode_s)
+        self.max_rate_rad_s = np.radians(max_rate_deg_s)
+        self.disturbance_torque_Nm = float(disturbance_torque_Nm)
+        self.w_pointing, self.w_effort, self.w_settle = float(w_pointing), float(w_effort), float(w_settle)
+        self.render_mode = render_mode
+
+        self.spacecraft = Spacecraft(
+            inertia_kg_m2=inertia_kg_m2,
+            n_wheels=n_wheels,
+            wheel_max_torque_Nm=wheel_max_torque_Nm,
+            wheel_max_speed_rad_s=wheel_max_speed_rad_s,
+        )
+        self.avionics = Avionics(
+            AvionicsConfig(
+                camera=camera,
+                frame_period_s=1.0 / float(frame_rate_hz),
+                control_period_s=self.control_period_s,
+                exposure_mode=exposure_mode,
+                n_exposures=n_exposures,
+                identify_method=identify_method,
+                matcher=matcher,
+                fidelity=fidelity,
+                gyro_grade=gyro_grade,
+                mag_limit=mag_limit,
+                keep_images=render_mode == "rgb_array",
+            )
+        )
+        nw = self.spacecraft.n_wheels
+        self.observation_layout = {
+            "attitude_error_rotvec": slice(0, 3),
+            "omega_body": slice(3, 6),
+            "wheel_momentum_fraction": slice(6, 6 + nw),
+            "tracker_mode": slice(6 + nw, 9 + nw),
+            "attitude_sigma": slice(9 + nw, 10 + nw),
+        }
+        w_max = self.avionics.gyro_max_rate_rad_s
+        low = np.concatenate([[-np.pi] * 3, [-w_max] * 3, [-1.0] * nw, [0.0] * 3, [0.0]]).astype(np.float32)
+        high = np.concatenate([[np.pi] * 3, [w_max] * 3, [1.0] * nw, [1.0] * 3, [np.pi]]).astype(np.float32)
+        self.observation_space = spaces.Box(low=low, high=high, dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (nw,), dtype=np.float32)
+        self._q_target = np.array([1.0, 0.0, 0.0, 0.0])
+        self._settled_s = 0.0
+        self._last_info: dict = {}
+
+    # ------------------------------------------------------------------ design (not state) for controllers
+    def controller_spec(self) -> dict:
+        """Design parameters a controller may use (``policies.ControllerSpec(**spec)``): no state, no truth."""
+        return dict(
+            inertia_kg_m2=self.spacecraft.inertia_kg_m2.copy(),
+            wheel_axes_body=self.spacecraft.wheel_axes_body.T.copy(),
+            wheel_max_torque_Nm=float(np.min(self.spacecraft.wheel_max_torque_Nm)),
+            max_rate_rad_s=float(self.max_rate_rad_s),
+            control_period_s=self.control_period_s,
+            observation_layout=dict(self.observation_layout),
+        )
+
+    @property
+    def q_target_body_to_world(self) -> np.ndarray:
+        return self._q_target.copy()
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        options = dict(options or {})
+        q0 = quat_random(rng)
+        if self.task == "slew":
+            lo, hi = self.slew_angle_deg_range
+            angle = np.radians(options.get("slew_angle_deg", rng.uniform(lo, hi)))
+            axis = rng.normal(size=3)
+            axis /= np.linalg.norm(axis)
+            self._q_target = quat_normalize(quat_multiply(q0, quat_from_rotvec(axis * angle)))
+            w0 = np.zeros(3)
+        else:
+            self._q_target = q0.copy()
+            w0 = rng.normal(size=3) * np.radians(0.05)
+        if "q_target" in options:
+            self._q_target = quat_normalize(options["q_target"])
+        self.spacecraft.set_state(q0, w0, np.zeros(self.spacecraft.n_wheels), time_s=0.0)
+        if self.disturbance_torque_Nm > 0:
+            d = rng.normal(size=3)
+            self._disturbance_world = d / np.linalg.norm(d) * self.disturbance_torque_Nm
+        else:
+            self._disturbance_world = np.zeros(3)
+        self.spacecraft.set_external_torque_world(self._disturbance_world)
+        self._settled_s = 0.0
+        self.avionics.reset(self.spacecraft, rng)
+        obs = self._observation()
+        info = self._info(reward_terms=(0.0, 0.0, 0.0))
+        return obs, info
+
+    def step(self, action):
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != self.action_space.shape:
+            raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("action contains NaN or inf")
+        a = np.clip(a, -1.0, 1.0)
+        self.spacecraft.apply_wheel_torque(a * self.spacecraft.wheel_max_torque_Nm)
+        self.avionics.advance(self.spacecraft, self.control_period_s, self.np_random)
+
+        q_true = self.spacecraft.q_body_to_world
+        err = float(quat_angle_between(q_true, self._q_target))
+        rate = float(np.linalg.norm(self.spacecraft.omega_body))
+        dt = self.control_period_s
+        settled_now = err <= self.settle_tolerance_rad and rate <= self.settle_rate_rad_s
+        self._settled_s = self._settled_s + dt if settled_now else 0.0
+        r_point = -self.w_pointing * err * dt
+        r_effort = -self.w_effort * float(np.mean(a**2)) * dt
+        r_settle = self.w_settle * dt if settled_now else 0.0
+        reward = r_point + r_effort + r_settle
+        terminated = self.task == "slew" and self._settled_s >= self.settle_hold_s - 1e-9
+        truncated = self.spacecraft.time_s >= self.max_episode_s - 1e-9
+        return self._observation(), float(reward), bool(terminated), bool(truncated), self._info((r_point, r_effort, r_settle))
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        return self.avionics.render_last_frame()
+
+    # ------------------------------------------------------------------ internals
+    def _observation(self) -> np.ndarray:
+        est = self.avionics.estimate()
+        q_err = quat_multiply(quat_conjugate(est.q_body_to_world), self._q_target)
+        e = quat_to_rotvec(q_err)
+        w_max = self.avionics.gyro_max_rate_rad_s
+        mode = np.zeros(3)
+        mode[TRACKER_MODES.index(self.avionics.tracker_mode)] = 1.0
+        obs = np.concatenate(
+            [
+                e,
+                np.clip(est.omega_body, -w_max, w_max),
+                np.clip(self.spacecraft.wheel_momentum_fraction, -1.0, 1.0),
+                mode,
+                [min(est.attitude_sigma_rad, np.pi)],
+            ]
+        )
+        return obs.astype(np.float32)
+
+    def _info(self, reward_terms) -> dict:
+        q_true = self.spacecraft.q_body_to_world
+        est = self.avionics.estimate()
+        stats = self.avionics.last_stats
+        info = {
+            "time_s": float(self.spacecraft.time_s),
+            "q_true": q_true,
+            "q_est": est.q_body_to_world.copy(),
+            "omega_est_body": est.omega_body.copy(),
+            "estimate_valid": bool(est.valid),
+            "q_target": self._q_target.copy(),
+            "omega_true_body": self.spacecraft.omega_body,
+            "attitude_error_arcsec": float(np.degrees(quat_angle_between(q_true, est.q_body_to_world)) * 3600.0),
+            "pointing_error_deg": float(np.degrees(quat_angle_between(q_true, self._q_target))),
+            "update_rate_hz": stats["update_rate_hz"],
+            "matching_latency_ms": stats["matching_latency_ms"],
+            "tracker_mode": self.avionics.tracker_mode,
+            "n_stars": stats["n_stars"],
+            "exposures_per_frame": stats["exposures_per_frame"],
+            "n_attitude_samples": stats["n_attitude_samples"],
+            "lost_lock_events": stats["lost_lock_events"],
+            "reward_pointing": reward_terms[0],
+            "reward_effort": reward_terms[1],
+            "reward_settle": reward_terms[2],
+            "settled_s": self._settled_s,
+        }
+        return info

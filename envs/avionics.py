@@ -1,0 +1,305 @@
+"""The avionics chain inside every env step: star tracker frames, gyro samples and the attitude EKF.
+
+Timeline of one control period ``[t0, t1]``:
+
+1. The spacecraft is integrated in MuJoCo substeps; the true attitude at every substep is kept (truth
+   history), and each substep yields one gyro sample (the average true rate over the substep, from the
+   quaternion increment, plus the gyro's errors).
+2. Each camera frame ``[tf, tf + T]`` inside the period is imaged from the truth history: an exposure plan
+   (single while the tracker is lost, multi-exposure with N chosen from the *gyro* rate while tracking),
+   the scene, detections (centroid or pixel fidelity), then the ``StarTracker`` state machine, which
+   returns up to N attitude samples stamped with their exposure instants.
+3. The EKF replays the period: gyro samples and attitude samples in time order (``AttitudeEKF.process``).
+   The frame's result is thus used as soon as the frame ends; processing delay is not simulated (the
+   measured matching latency is reported, never fed back into the dynamics).
+
+Everything random draws from the env's ``np_random``; wall-clock latencies are reported only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from startracker.catalog import load_catalog
+from startracker.centroid import simulate_detections
+from startracker.filter import AttitudeEKF
+from startracker.imaging import SensorModel, render_frame
+from startracker.imu import Gyro, gyro_preset, GYRO_GRADES
+from startracker.optics import camera_preset, CAMERA_PRESETS
+from startracker.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
+from startracker.scene import ExposurePlan, compute_scene
+from startracker.sensor import StarTracker
+
+__all__ = ["Avionics", "AvionicsConfig", "Estimate", "TRACKER_MODES"]
+
+TRACKER_MODES = ("lost", "acquire", "track")
+IDENTIFY_METHODS = ("pyramid", "voting", "brightness", "string")
+MATCHERS = ("dkvlut", "brute", "kdtree")
+
+
+@dataclass(frozen=True)
+class AvionicsConfig:
+    """Star tracker, gyro and filter settings (the env's keyword arguments, validated here)."""
+
+    camera: str = "paper000"
+    frame_period_s: float = 0.1
+    control_period_s: float = 0.1
+    exposure_mode: str = "multi"
+    n_exposures: int | str = "adaptive"
+    exposure_s: float = 1.0e-3
+    single_exposure_s: float = 0.02
+    max_exposures: int = 21
+    identify_method: str = "pyramid"
+    matcher: str = "dkvlut"
+    fidelity: str = "centroid"
+    gyro_grade: str = "tactical"
+    gyro_rate_hz: float = 100.0
+    mag_limit: float = 6.0
+    keep_images: bool = False
+
+    def __post_init__(self):
+        if self.camera not in CAMERA_PRESETS:
+            raise ValueError(f"camera must be one of {sorted(CAMERA_PRESETS)}, got {self.camera!r}")
+        if self.exposure_mode not in ("single", "multi"):
+            raise ValueError(f"exposure_mode must be 'single' or 'multi', got {self.exposure_mode!r}")
+        n = self.n_exposures
+        if not (n == "adaptive" or (isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= self.max_exposures)):
+            raise ValueError(f"n_exposures must be 'adaptive' or an int in [1, {self.max_exposures}], got {n!r}")
+        if self.identify_method not in IDENTIFY_METHODS:
+            raise ValueError(f"identify_method must be one of {IDENTIFY_METHODS}, got {self.identify_method!r}")
+        if self.matcher not in MATCHERS:
+            raise ValueError(f"matcher must be one of {MATCHERS}, got {self.matcher!r}")
+        if self.fidelity not in ("centroid", "pixel"):
+            raise ValueError(f"fidelity must be 'centroid' or 'pixel', got {self.fidelity!r}")
+        if self.gyro_grade not in GYRO_GRADES:
+            raise ValueError(f"gyro_grade must be one of {sorted(GYRO_GRADES)}, got {self.gyro_grade!r}")
+        ratio = self.control_period_s / self.frame_period_s
+        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
+            raise ValueError(
+                "frame_rate_hz * control_period_s must be a positive integer (whole frames per control period), "
+                f"got {ratio:.6g}"
+            )
+        steps = self.frame_period_s * self.gyro_rate_hz
+        if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+            raise ValueError("the frame period must be a whole number of gyro samples (gyro_rate_hz * frame period)")
+
+
+@dataclass
+class Estimate:
+    """What the controller may know: the filter's output."""
+
+    q_body_to_world: np.ndarray
+    omega_body: np.ndarray
+    attitude_sigma_rad: float
+    valid: bool
+
+
+class Avionics:
+    """Star tracker + gyro + MEKF run against the spacecraft's truth.
+
+    Parameters
+    ----------
+    config : AvionicsConfig
+    """
+
+    def __init__(self, config: AvionicsConfig):
+        if not isinstance(config, AvionicsConfig):
+            raise TypeError("config must be an AvionicsConfig")
+        self.config = config
+        self.camera = camera_preset(config.camera)
+        self.catalog = load_catalog(mag_limit=config.mag_limit)
+        self.sensor_model = SensorModel.for_camera(self.camera) if hasattr(SensorModel, "for_camera") else SensorModel()
+        self.gyro_spec = gyro_preset(config.gyro_grade, rate_hz=config.gyro_rate_hz)
+        self.tracker = StarTracker(
+            self.camera,
+            self.catalog,
+            identify_method=config.identify_method,
+            matcher=config.matcher,
+        )
+        self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
+        self._gyro_dt = 1.0 / config.gyro_rate_hz
+        self.gyro: Gyro | None = None
+        self.ekf: AttitudeEKF | None = None
+        self.tracker_mode = "lost"
+        self.last_stats = self._empty_stats()
+        self._last_frame = None
+        self._lost_events = 0
+
+    # ------------------------------------------------------------------ lifecycle
+    @staticmethod
+    def _empty_stats() -> dict:
+        return dict(
+            update_rate_hz=0.0,
+            matching_latency_ms=0.0,
+            n_stars=0,
+            exposures_per_frame=0,
+            n_attitude_samples=0,
+            lost_lock_events=0,
+            frame_latencies_ms=[],
+        )
+
+    def reset(self, spacecraft, rng: np.random.Generator) -> None:
+        """New episode: fresh gyro errors, lost tracker, no estimate; then one single-exposure frame."""
+        self.gyro = Gyro(self.gyro_spec, rng)
+        self.tracker.reset()
+        self.tracker_mode = "lost"
+        self.ekf = None
+        self._omega_gyro = np.zeros(3)
+        self._lost_events = 0
+        self.last_stats = self._empty_stats()
+        t = spacecraft.time_s
+        self._t_hist = np.array([t])
+        self._q_hist = spacecraft.q_body_to_world[None, :].copy()
+        # The first frame is exposed while the spacecraft sits at its initial attitude (at rest or drifting slowly):
+        # the truth over it comes from integrating the initial rate, without stepping the episode's clock.
+        w = spacecraft.omega_body
+        from startracker.rotations import quat_integrate
+
+        t_pre = np.linspace(t - self.config.frame_period_s, t, 11)
+        q_pre = quat_integrate(spacecraft.q_body_to_world, w, t_pre - t)
+        samples = self._run_frame(t_pre[0], (t_pre, q_pre), rng)
+        if samples:
+            last = samples[-1]
+            self._init_ekf(last, t)
+
+    def _init_ekf(self, sample, t_now: float) -> None:
+        sig = float(np.sqrt(np.max(np.linalg.eigvalsh(sample.covariance_rad2))))
+        self.ekf = AttitudeEKF(
+            sample.q_body_to_icrs,
+            arw_rad_sqrt_s=max(self.gyro_spec.arw_rad_sqrt_s, 1e-7),
+            rrw_rad_s_sqrt_s=self.gyro_spec.bias_rw_equivalent_rad_s_sqrt_s,
+            sigma_attitude_rad=max(3 * sig, 1e-5),
+            sigma_bias_rad_s=max(self.gyro_spec.bias_sigma_rad_s + self.gyro_spec.gm_sigma_rad_s, 1e-7),
+            t_s=sample.t_s,
+            gate_chi2=30.0,
+        )
+        if t_now > sample.t_s:
+            self.ekf.propagate(self._omega_gyro, t_now - sample.t_s)
+
+    # ------------------------------------------------------------------ one control period
+    def advance(self, spacecraft, duration_s: float, rng: np.random.Generator) -> None:
+        """Integrate the spacecraft over ``duration_s`` and run frames, gyro and filter over it."""
+        n_sub = int(round(duration_s / self._gyro_dt))
+        t0 = spacecraft.time_s
+        times = np.empty(n_sub + 1)
+        quats = np.empty((n_sub + 1, 4))
+        times[0] = t0
+        quats[0] = spacecraft.q_body_to_world
+        for k in range(n_sub):
+            spacecraft.step(self._gyro_dt)
+            times[k + 1] = spacecraft.time_s
+            quats[k + 1] = spacecraft.q_body_to_world
+        # average true rate over each gyro interval, from the quaternion increment (body frame)
+        dq = quat_multiply(quat_conjugate(quats[:-1]), quats[1:])
+        omega_avg = quat_to_rotvec(dq) / np.diff(times)[:, None]
+        omega_meas = self.gyro.measure(omega_avg, rng)
+        self._omega_gyro = omega_meas[-1].copy()
+
+        samples = []
+        n_frames = int(round(duration_s / self.config.frame_period_s))
+        stats = self._empty_stats()
+        lat = []
+        for f in range(n_frames):
+            tf = t0 + f * self.config.frame_period_s
+            samples.extend(self._run_frame(tf, (times, quats), rng, omega_hint=omega_meas.mean(axis=0)))
+            lat.append(self.last_stats["matching_latency_ms"])
+            stats["n_stars"] = self.last_stats["n_stars"]
+            stats["exposures_per_frame"] = self.last_stats["exposures_per_frame"]
+        stats["matching_latency_ms"] = float(np.mean(lat)) if lat else 0.0
+        stats["frame_latencies_ms"] = lat
+        stats["n_attitude_samples"] = len(samples)
+        stats["update_rate_hz"] = len(samples) / duration_s
+        stats["lost_lock_events"] = self._lost_events
+
+        if self.ekf is None:
+            if samples:
+                first = samples[0]
+                self._init_ekf(first, first.t_s)
+                rest = [s for s in samples[1:]]
+                self._ekf_process(times, omega_meas, rest, start_index=int(np.searchsorted(times, first.t_s, side="right")))
+        else:
+            self._ekf_process(times, omega_meas, samples)
+        self.last_stats = stats
+
+    def _ekf_process(self, times, omega_meas, samples, start_index: int = 1) -> None:
+        """Replay gyro intervals ``(times[k-1], times[k]]`` and the attitude samples in time order."""
+        tg = times[start_index:]
+        wg = omega_meas[start_index - 1 :]
+        if len(tg) == 0:
+            return
+        if samples:
+            samples = sorted(samples, key=lambda s: s.t_s)
+            qm = np.array([s.q_body_to_icrs for s in samples])
+            tm = np.array([s.t_s for s in samples])
+            cm = np.array([s.covariance_rad2 for s in samples])
+            keep = tm >= self.ekf.t_s - 1e-12
+            qm, tm, cm = qm[keep], np.maximum(tm[keep], self.ekf.t_s), cm[keep]
+        else:
+            qm, tm, cm = np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3))
+        self.ekf.process(wg, tg, qm, tm, cm)
+
+    def _run_frame(self, t_frame: float, truth, rng, omega_hint=None) -> list:
+        """Image, detect and process one frame starting at ``t_frame``; returns the attitude samples."""
+        cfg = self.config
+        want_single = cfg.exposure_mode == "single" or self.tracker.requested_n_exposures == 1
+        if want_single:
+            plan = ExposurePlan(n_exposures=1, exposure_s=cfg.single_exposure_s, frame_period_s=cfg.frame_period_s,
+                                start_offset_s=0.5 * (cfg.frame_period_s - cfg.single_exposure_s))
+        elif cfg.n_exposures == "adaptive":
+            rate = np.zeros(3) if omega_hint is None else omega_hint
+            plan = ExposurePlan.for_rate(rate, self.camera, frame_period_s=cfg.frame_period_s,
+                                         exposure_s=cfg.exposure_s, n_max=cfg.max_exposures)
+        else:
+            n = int(cfg.n_exposures)
+            plan = ExposurePlan(n_exposures=n, exposure_s=cfg.exposure_s, frame_period_s=cfg.frame_period_s)
+        scene = compute_scene(self.camera, self.catalog, truth, plan, t_frame)
+        det = simulate_detections(scene, self.sensor_model, rng, fidelity=cfg.fidelity)
+        prev_mode = self.tracker_mode
+        res = self.tracker.process_frame(
+            det.xy,
+            det.intensity,
+            plan.exposure_mid_times(t_frame),
+            t_frame,
+            omega_body=omega_hint,
+        )
+        self.tracker_mode = res.mode
+        if prev_mode == "track" and res.mode == "lost":
+            self._lost_events += 1
+        if cfg.keep_images:
+            self._last_frame = (scene, det, plan)
+        self.last_stats = dict(
+            self._empty_stats(),
+            matching_latency_ms=float(res.matching_latency_ms),
+            n_stars=int(res.n_matched),
+            exposures_per_frame=int(plan.n_exposures),
+            n_attitude_samples=len(res.samples),
+        )
+        return list(res.samples)
+
+    # ------------------------------------------------------------------ outputs
+    def estimate(self) -> Estimate:
+        if self.ekf is None:
+            return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
+        sig = float(np.max(self.ekf.attitude_sigma_rad))
+        return Estimate(self.ekf.q_body_to_world.copy(), np.asarray(self.ekf.omega_body, float).copy(), sig, True)
+
+    def render_last_frame(self) -> np.ndarray | None:
+        """RGB uint8 image (rows, cols, 3) of the last frame (full render) with detections circled."""
+        if self._last_frame is None:
+            return None
+        scene, det, plan = self._last_frame
+        image = render_frame(scene, self.sensor_model, np.random.default_rng(0))
+        lo, hi = np.percentile(image, [50.0, 99.9])
+        g = np.clip((image - lo) / max(hi - lo, 1e-9), 0, 1) ** 0.5
+        rgb = (np.stack([g, g, g], axis=-1) * 255).astype(np.uint8)
+        h, w = g.shape
+        for x, y in np.round(det.xy).astype(int):
+            for dx in range(-6, 7):
+                for dy in (-6, 6):
+                    if 0 <= x + dx < w and 0 <= y + dy < h:
+                        rgb[y + dy, x + dx] = (0, 255, 0)
+                    if 0 <= x + dy < w and 0 <= y + dx < h:
+                        rgb[y + dx, x + dy] = (0, 255, 0)
+        return rgb

@@ -1,0 +1,156 @@
+"""Lost-in-space star identification: pyramid, geometric voting, brightness-referenced, main-star strings.
+
+One entry point, :func:`identify`, one result type, :class:`IdentificationResult`, and one database per
+(catalog, camera), :func:`build_database`, shared by all methods (star-pair catalog on the k-vector,
+reference-star pairs, pattern strings, k-d tree). Every method proposes hypotheses in its own way and
+ends with the same verification (:mod:`startracker.identify.verification`): Wahba attitude, every
+detection matched against the catalog, acceptance only with enough confirming stars for the false-alarm
+limit; then all detections are labelled with HIP numbers (−1 for the rest).
+
+Example
+-------
+>>> from startracker.catalog import load_catalog
+>>> from startracker.optics import camera_preset
+>>> from startracker.identify import identify
+>>> r = identify(xy, camera_preset("paper000"), load_catalog(6.0), method="pyramid")  # doctest: +SKIP
+>>> r.success, r.star_ids, r.q_cam_to_icrs, r.latency_ms                           # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from startracker.attitude import RAD_TO_ARCSEC, solve_wahba
+from startracker.catalog import StarCatalog
+from startracker.identify.brightness import identify_brightness
+from startracker.identify.database import StarDatabase, build_database, clear_database_cache
+from startracker.identify.frame import IdentifyOptions, prepare_frame
+from startracker.identify.pattern_string import identify_pattern_string
+from startracker.identify.pyramid import identify_pyramid
+from startracker.identify.result import IdentificationResult
+from startracker.identify.voting import identify_voting
+from startracker.optics import Camera
+
+__all__ = [
+    "identify",
+    "IdentificationResult",
+    "build_database",
+    "StarDatabase",
+    "IdentifyOptions",
+    "clear_database_cache",
+    "METHODS",
+]
+
+METHODS = {
+    "pyramid": identify_pyramid,
+    "voting": identify_voting,
+    "brightness": identify_brightness,
+    "string": identify_pattern_string,
+}
+
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def identify(
+    xy,
+    camera: Camera,
+    catalog: StarCatalog,
+    method: str = "pyramid",
+    intensities=None,
+    database: StarDatabase | None = None,
+    **options,
+) -> IdentificationResult:
+    """Identify detected stars with no prior attitude.
+
+    Parameters
+    ----------
+    xy : array_like, shape (K, 2)
+        Detections in pixels (column, row), brightest first when ``intensities`` is None.
+    camera : Camera
+    catalog : StarCatalog
+        Stars the camera can see (e.g. ``load_catalog(6.0)``).
+    method : {"pyramid", "voting", "brightness", "string"}
+    intensities : array_like, shape (K,), optional
+        Positive detection intensities; the detections are ordered by them. The brightness method needs
+        them (measured magnitude ``mag_zero_point − 2.5 log10(intensity)``).
+    database : StarDatabase, optional
+        From :func:`build_database`; by default the cached database of ``(catalog, camera)``.
+    **options
+        See :class:`startracker.identify.frame.IdentifyOptions` (``sigma_px``, ``false_alarm``, ...).
+
+    Returns
+    -------
+    IdentificationResult
+        A failure is ``success=False`` with a ``status``, never an exception.
+
+    Raises
+    ------
+    ValueError
+        Malformed ``xy`` / ``intensities`` (shape, NaN, inf, non-positive intensity), an unknown
+        ``method``, a bad option value, or a database built for another camera.
+    TypeError
+        Wrong argument types or unknown option names.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a Camera, got {type(camera).__name__}")
+    if not isinstance(catalog, StarCatalog):
+        raise TypeError(f"catalog must be a StarCatalog, got {type(catalog).__name__}")
+    opts = IdentifyOptions.from_kwargs(options)
+    if method == "brightness" and intensities is None:
+        raise ValueError("intensities are required for method='brightness'")
+    if database is None:
+        database = build_database(catalog, camera)
+    elif not isinstance(database, StarDatabase):
+        raise TypeError(f"database must be a StarDatabase, got {type(database).__name__}")
+    elif database.camera != camera:
+        raise ValueError("database was built for another camera")
+    t0 = time.perf_counter()
+    frame = prepare_frame(xy, camera, intensities, opts)
+    k = frame.n_input
+    star_ids = np.full(k, -1, dtype=np.int64)
+
+    def failure(status, n_req=0, n_hyp=0):
+        return IdentificationResult(
+            success=False,
+            star_ids=star_ids,
+            q_cam_to_icrs=_IDENTITY.copy(),
+            n_matched=0,
+            residual_arcsec=float("inf"),
+            latency_ms=(time.perf_counter() - t0) * 1e3,
+            status=status,
+            method=method,
+            n_required=n_req,
+            n_hypotheses=n_hyp,
+            covariance_rad2=np.diag([np.inf] * 3),
+        )
+
+    if frame.n < 3:
+        extra = f" ({frame.n_dropped} off the detector or duplicated)" if frame.n_dropped else ""
+        return failure(f"fewer than 3 usable detections{extra}")
+    if len(database.pairs) == 0:
+        return failure("catalog too sparse for the field of view")
+    match, status, n_hyp = METHODS[method](database, frame, opts)
+    if match is None:
+        return failure(status, n_hyp=n_hyp)
+    v_ref = database.nav.vectors[match.nav]
+    sol = solve_wahba(frame.v[match.det], v_ref, sigma_rad=frame.sigma_rad)
+    if not sol.success or sol.residual_rms_arcsec > frame.match_tol_rad * RAD_TO_ARCSEC:
+        return failure(f"final attitude rejected: {sol.status}", match.n_required, n_hyp)
+    star_ids[frame.index[match.det]] = database.nav.hip[match.nav]
+    return IdentificationResult(
+        success=True,
+        star_ids=star_ids,
+        q_cam_to_icrs=sol.q_meas_to_ref,
+        n_matched=int(match.n_matched),
+        residual_arcsec=float(sol.residual_rms_arcsec),
+        latency_ms=(time.perf_counter() - t0) * 1e3,
+        status="ok",
+        method=method,
+        n_required=int(match.n_required),
+        n_hypotheses=int(n_hyp),
+        covariance_rad2=sol.covariance_rad2,
+    )

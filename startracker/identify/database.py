@@ -1,0 +1,223 @@
+"""The identification database: navigation stars, star-pair catalog, pattern strings; built once, cached.
+
+``build_database(catalog, camera)`` selects the navigation stars (the catalog, with stars closer than a
+couple of pixels resolved as one, as the detector would see them), builds the star-pair catalog of
+paper 002 on the k-vector (pairs closer than the FOV diagonal), the reference-star pair catalog, the
+main-star pattern strings of paper 003 and a k-d tree for verification, and measures the catalog's
+clumping for the false-alarm rule. The result is cached per (catalog object, camera, build options), so
+``identify()`` without ``database=`` builds it on the first call only.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from startracker.catalog import StarCatalog, select_navigation_stars
+from startracker.identify.pairs import StarPairCatalog, build_pair_catalog
+from startracker.identify.pattern_string import PatternCatalog, build_pattern_catalog
+from startracker.optics import Camera
+
+__all__ = ["StarDatabase", "build_database", "clear_database_cache"]
+
+_CACHE: "weakref.WeakKeyDictionary[StarCatalog, dict]" = weakref.WeakKeyDictionary()
+
+
+@dataclass(frozen=True, eq=False)
+class StarDatabase:
+    """Everything identification needs for one (catalog, camera).
+
+    Attributes
+    ----------
+    camera : Camera
+    nav : StarCatalog
+        Navigation stars, brightest first; all indices below point into it.
+    tree : scipy.spatial.cKDTree
+        Over ``nav.vectors`` (verification).
+    pairs : StarPairCatalog
+        All pairs closer than the FOV diagonal (paper 002 §4.2.1).
+    ref_pairs : StarPairCatalog or None
+        Pairs whose brighter star is brighter than ``ref_mag_limit`` (reference stars).
+    ref_mag_limit : float
+    patterns : PatternCatalog
+        Main-star pattern strings (paper 003).
+    clumping3 : float
+        ``⟨ρ³⟩ / ⟨ρ⟩³`` of the star density over FOV-sized cones (1 for a uniform sky).
+    density_eff_per_sr : float
+        Star density a wrong attitude meets, ``⟨ρ⁴⟩ / ⟨ρ³⟩``, stars per steradian.
+    build_time_s : float
+        Wall-clock build time.
+    options : dict
+        The build options.
+    """
+
+    camera: Camera
+    nav: StarCatalog
+    tree: cKDTree
+    pairs: StarPairCatalog
+    ref_pairs: StarPairCatalog | None
+    ref_mag_limit: float
+    patterns: PatternCatalog
+    clumping3: float
+    density_eff_per_sr: float
+    build_time_s: float
+    options: dict
+
+    @property
+    def n_stars(self) -> int:
+        return len(self.nav)
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes held by the database's arrays (navigation stars, pairs, reference pairs, strings, tree)."""
+        nav = self.nav
+        total = nav.hip.nbytes + nav.vectors.nbytes + nav.vmag.nbytes + nav.bv.nbytes
+        total += self.pairs.nbytes + (self.ref_pairs.nbytes if self.ref_pairs is not None else 0)
+        total += self.patterns.nbytes
+        total += self.tree.data.nbytes + self.tree.indices.nbytes
+        return int(total)
+
+    @property
+    def pattern_catalog_bytes(self) -> int:
+        """Size of the pattern-string catalog with paper 003's storage layout, bytes."""
+        return self.patterns.paper_bytes
+
+    def p_random(self, tol_rad: float) -> float:
+        """Probability that a direction falls within ``tol_rad`` of some navigation star by chance."""
+        return min(1.0, self.density_eff_per_sr * math.pi * tol_rad * tol_rad)
+
+    def summary(self) -> str:
+        return (
+            f"{self.n_stars} navigation stars, {len(self.pairs)} pairs "
+            f"(< {np.degrees(self.pairs.max_angle_rad):.2f} deg), "
+            f"{0 if self.ref_pairs is None else len(self.ref_pairs)} reference pairs, "
+            f"{len(self.patterns.guide)} pattern strings ({self.pattern_catalog_bytes / 1000:.1f} kB paper layout); "
+            f"{self.memory_bytes / 1e6:.1f} MB, built in {self.build_time_s:.2f} s"
+        )
+
+
+def _fibonacci_sphere(n: int) -> np.ndarray:
+    k = np.arange(n) + 0.5
+    z = 1 - 2 * k / n
+    phi = np.pi * (1 + 5**0.5) * k
+    r = np.sqrt(1 - z * z)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def _density_moments(tree: cKDTree, n_stars: int, radius_rad: float) -> tuple[float, float]:
+    """Clumping ⟨ρ³⟩/⟨ρ⟩³ and the effective density ⟨ρ⁴⟩/⟨ρ³⟩ (per sr) over cones of ``radius_rad``."""
+    dirs = _fibonacci_sphere(3000)
+    counts = tree.query_ball_point(dirs, r=2 * math.sin(radius_rad / 2), return_length=True).astype(float)
+    omega = 2 * math.pi * (1 - math.cos(radius_rad))
+    rho = counts / omega
+    m1 = max(rho.mean(), 1e-300)
+    m3 = max((rho**3).mean(), 1e-300)
+    m4 = (rho**4).mean()
+    return float(m3 / m1**3), float(m4 / m3) if m3 > 1e-300 else float(n_stars / (4 * math.pi))
+
+
+def build_database(
+    catalog: StarCatalog,
+    camera: Camera,
+    *,
+    mag_limit: float | None = None,
+    min_separation_px: float = 2.0,
+    ref_mag_limit: float = 3.6,
+    guide_mag_limit: float | None = None,
+    guide_min_separation_deg: float = 0.0,
+    cache: bool = True,
+) -> StarDatabase:
+    """Build (or fetch from the cache) the identification database for a catalog and a camera.
+
+    Parameters
+    ----------
+    catalog : StarCatalog
+        The stars the tracker can see (e.g. ``load_catalog(6.0)``).
+    camera : Camera
+    mag_limit : float, optional
+        Extra V cut on the navigation stars.
+    min_separation_px : float
+        Stars closer than this (pixels at the boresight) blend into one spot: the fainter is dropped.
+    ref_mag_limit : float
+        Reference-star pair catalog: pairs whose brighter star has V <= this (paper 002 uses 3.0; the
+        default leaves 3σ room for 0.2 mag intensity errors).
+    guide_mag_limit : float, optional
+        V limit of the main (guide) stars of the pattern strings (default: all navigation stars).
+    guide_min_separation_deg : float
+        Paper 003 keeps only guide stars more than 3° from a brighter one; 0 (default) keeps all, which
+        suits images that contain every star down to the catalog limit.
+    cache : bool
+        Reuse a database built earlier for the same catalog object, camera and options.
+
+    Returns
+    -------
+    StarDatabase
+        ``build_time_s``, ``memory_bytes`` and ``pattern_catalog_bytes`` report its cost.
+    """
+    if not isinstance(catalog, StarCatalog):
+        raise TypeError(f"catalog must be a StarCatalog, got {type(catalog).__name__}")
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a Camera, got {type(camera).__name__}")
+    for name, v in (("min_separation_px", min_separation_px), ("ref_mag_limit", ref_mag_limit),
+                    ("guide_min_separation_deg", guide_min_separation_deg)):
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+            raise ValueError(f"{name} must be a finite number, got {v!r}")
+    if min_separation_px < 0 or guide_min_separation_deg < 0:
+        raise ValueError("min_separation_px and guide_min_separation_deg must be >= 0")
+    options = dict(
+        mag_limit=None if mag_limit is None else float(mag_limit),
+        min_separation_px=float(min_separation_px),
+        ref_mag_limit=float(ref_mag_limit),
+        guide_mag_limit=None if guide_mag_limit is None else float(guide_mag_limit),
+        guide_min_separation_deg=float(guide_min_separation_deg),
+    )
+    key = (camera, tuple(sorted(options.items())))
+    if cache:
+        hit = _CACHE.get(catalog, {}).get(key)
+        if hit is not None:
+            return hit
+
+    t0 = time.perf_counter()
+    pix_rad = camera.pixel_size_mm / camera.focal_length_mm
+    nav = select_navigation_stars(catalog, mag_limit=mag_limit, min_separation_rad=min_separation_px * pix_rad)
+    if len(nav) < 3:
+        raise ValueError(f"catalog has {len(nav)} usable stars: at least 3 are needed")
+    # Corner to corner, with room for distortion and the aberration widening of windows.
+    max_angle = min(2.0 * camera.half_diagonal_fov_rad * 1.02, np.pi * 0.999)
+    pairs = build_pair_catalog(nav.vectors, nav.vmag, max_angle)
+    ref_mask = pairs.first_mag <= ref_mag_limit
+    ref_pairs = pairs.subset(ref_mask) if ref_mask.any() else None
+    tree = cKDTree(nav.vectors)
+    theta_max = min(camera.half_fov_rad)
+    guide_mask = np.ones(len(nav), dtype=bool) if guide_mag_limit is None else nav.vmag <= guide_mag_limit
+    if guide_min_separation_deg > 0:
+        kept = select_navigation_stars(nav.subset(guide_mask), min_separation_rad=np.radians(guide_min_separation_deg))
+        guide_mask = np.isin(nav.hip, kept.hip)
+    patterns = build_pattern_catalog(pairs, guide_mask, theta_max)
+    clumping, dens = _density_moments(tree, len(nav), max(camera.half_fov_rad))
+    db = StarDatabase(
+        camera=camera,
+        nav=nav,
+        tree=tree,
+        pairs=pairs,
+        ref_pairs=ref_pairs,
+        ref_mag_limit=float(ref_mag_limit),
+        patterns=patterns,
+        clumping3=clumping,
+        density_eff_per_sr=dens,
+        build_time_s=time.perf_counter() - t0,
+        options=options,
+    )
+    if cache:
+        _CACHE.setdefault(catalog, {})[key] = db
+    return db
+
+
+def clear_database_cache() -> None:
+    """Forget every cached database."""
+    _CACHE.clear()

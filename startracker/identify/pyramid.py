@@ -1,0 +1,203 @@
+"""Mortari's Pyramid (Mortari, Samaan, Bruccoleri & Junkins 2004), as paper 002 §2.1 describes it.
+
+Triads ``(i, j, k)`` of the brightest detections are taken in the "smart" order, which changes all
+three indices as fast as possible so that a false star does not spoil a long run of triads::
+
+    for dj in 1 .. n-2:  for dk in 1 .. n-dj-1:  for i in 1 .. n-dj-dk:   (i, i+dj, i+dj+dk)
+
+For each triad the three inter-star angles are looked up in the star-pair catalog with the k-vector;
+the catalog triangles consistent with all three (and with the measured handedness) are the hypotheses.
+A hypothesis needs a fourth detection ``r`` whose catalog star has the right angles to all three
+(the pyramid); then the common verification decides, and reporting failure is preferred to a
+low-confidence answer (two different verified attitudes make the frame ambiguous).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from startracker.identify.frame import Frame, IdentifyOptions
+from startracker.identify.verification import Match, best_of, fast_rotation, triangle_false_rate, verify
+
+__all__ = ["smart_triads", "identify_pyramid", "PairCandidates", "triangles", "confirm_fourth"]
+
+
+def smart_triads(n: int):
+    """Mortari's "smart" triad order over ``n`` stars (0-based indices, all C(n, 3) triads)."""
+    for dj in range(1, n - 1):
+        for dk in range(1, n - dj):
+            for i in range(0, n - dj - dk):
+                yield i, i + dj, i + dj + dk
+
+
+class PairCandidates:
+    """Catalog candidates of detection pairs, looked up lazily with the k-vector and cached per frame.
+
+    ``get(p, q)`` returns ``(ids_p, ids_q)``: for every catalog pair in the window of the angle between
+    detections ``p`` and ``q``, both orientations (``p`` = brighter or dimmer catalog star).
+    """
+
+    def __init__(self, pairs, frame: Frame):
+        self.pairs = pairs
+        self.frame = frame
+        self.cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def fetch(self, keys):
+        need = [pq for pq in keys if pq not in self.cache]
+        if not need:
+            return
+        p = [a for a, _ in need]
+        q = [b for _, b in need]
+        start, stop = self.pairs.ranges(self.frame.angle_rad[p, q], self.frame.pair_tol_rad[p, q])
+        first, second = self.pairs.first, self.pairs.second
+        for t, key in enumerate(need):  # the window of one pair is a contiguous slice of the catalog
+            f = first[start[t] : stop[t]]
+            s = second[start[t] : stop[t]]
+            self.cache[key] = (np.concatenate([f, s]), np.concatenate([s, f]))
+
+    def get(self, p: int, q: int):
+        if (p, q) not in self.cache:
+            self.fetch([(p, q)])
+        return self.cache[(p, q)]
+
+
+def _join(a_left: np.ndarray, a_right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All index pairs (l, r) with ``a_left[l] == a_right[r]`` (vectorised sort join)."""
+    if len(a_left) == 0 or len(a_right) == 0:
+        e = np.empty(0, dtype=np.int64)
+        return e, e
+    key = a_right.astype(np.int16) if a_right.max() < 32768 else a_right  # int16 sorts by radix
+    o = np.argsort(key, kind="stable")
+    srt = a_right[o]
+    lo = np.searchsorted(srt, a_left, side="left")
+    hi = np.searchsorted(srt, a_left, side="right")
+    cnt = hi - lo
+    total = int(cnt.sum())
+    if total == 0:
+        e = np.empty(0, dtype=np.int64)
+        return e, e
+    li = np.repeat(np.arange(len(a_left)), cnt)
+    offs = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    ri = o[np.repeat(lo, cnt) + offs]
+    return li, ri
+
+
+def _members(ids: np.ndarray, n: int) -> np.ndarray:
+    m = np.zeros(n, dtype=bool)
+    m[ids] = True
+    return m
+
+
+def triangles(db, frame: Frame, cands, i: int, j: int, k: int) -> np.ndarray:
+    """Catalog triangles ``(a, b, c)`` matching detections ``(i, j, k)`` (angles and handedness).
+
+    The candidates of ``s_i`` are the stars present in both windows ``(i, j)`` and ``(i, k)``; the two
+    oriented candidate lists are pruned to them, joined on ``s_i``, and the third side checked.
+
+    Returns
+    -------
+    ndarray of int, shape (H, 3)
+        Navigation indices of the hypotheses.
+    """
+    empty = np.empty((0, 3), dtype=np.int64)
+    ai, bj = cands.get(i, j)
+    ai2, ck = cands.get(i, k)
+    if len(ai) == 0 or len(ai2) == 0:
+        return empty
+    n_nav = db.n_stars
+    both = _members(ai, n_nav) & _members(ai2, n_nav)
+    k1 = both[ai]
+    k2 = both[ai2]
+    ai, bj, ai2, ck = ai[k1], bj[k1], ai2[k2], ck[k2]
+    li, ri = _join(ai, ai2)
+    if len(li) == 0:
+        return empty
+    a, b, c = ai[li], bj[li], ck[ri]
+    nav = db.nav.vectors
+    cos_bc = np.einsum("ij,ij->i", nav[b], nav[c])
+    th, tol = frame.angle_rad[j, k], frame.pair_tol_rad[j, k]
+    ok = (cos_bc <= np.cos(max(th - tol, 0.0))) & (cos_bc >= np.cos(min(th + tol, np.pi))) & (b != c)
+    if not ok.any():
+        return empty
+    a, b, c = a[ok], b[ok], c[ok]
+    v = frame.v
+    s_meas = np.dot(v[i], np.cross(v[j], v[k]))
+    s_cat = np.einsum("ij,ij->i", nav[a], np.cross(nav[b], nav[c]))
+    same = (s_cat > 0) == (s_meas > 0)
+    hyp = np.column_stack([a[same], b[same], c[same]])
+    if len(hyp) > 1:
+        hyp = np.unique(hyp, axis=0)
+    return hyp
+
+
+def confirm_fourth(db, frame: Frame, det3, hyp: np.ndarray, rest: np.ndarray):
+    """The pyramid step: which hypotheses have a fourth detection that fits all three catalog angles.
+
+    Under a hypothesis' attitude a fourth detection ``r`` must point at a catalog star ``d``; its three
+    angles to ``a, b, c`` then agree with the measured ones within the pair tolerance exactly when ``d``
+    lies within about that tolerance of the predicted direction, which is what is tested (one k-d tree
+    query for all hypotheses and all remaining stars).
+
+    Parameters
+    ----------
+    det3 : sequence of 3 int
+        The detections of the triad.
+    hyp : ndarray, shape (H, 3)
+    rest : ndarray of int, shape (R,)
+        Candidate fourth detections.
+
+    Returns
+    -------
+    ok : ndarray of bool, shape (H,)
+    rot : ndarray, shape (H, 3, 3)
+        Triad attitudes.
+    """
+    v = frame.v
+    nav = db.nav.vectors
+    rot = fast_rotation(v[list(det3)][None], nav[hyp])
+    if len(rest) == 0:
+        return np.zeros(len(hyp), dtype=bool), rot
+    w = (rot @ v[rest].T).transpose(0, 2, 1).reshape(-1, 3)  # (H*R, 3) predicted ICRS directions
+    reach = 2.0 * float(frame.pair_tol_rad[det3[0], rest].max())
+    dist, _ = db.tree.query(w, k=1, distance_upper_bound=2 * np.sin(reach / 2))
+    return np.isfinite(dist).reshape(len(hyp), len(rest)).any(axis=1), rot
+
+
+def identify_pyramid(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | None, str, int]:
+    """Pyramid identification; returns (match, status, hypotheses verified)."""
+    n = frame.n
+    if n < 3:
+        return None, "fewer than 3 usable detections", 0
+    pool = min(n, opts.max_stars or 12)
+    order = np.arange(min(n, max(pool, 4)))  # fourth stars come from the pool (at least 4 stars)
+    cands = PairCandidates(db.pairs, frame)
+    n_stars = float(db.n_stars)
+    n_hyp = 0
+    ambiguous = False
+    for t, (i, j, k) in enumerate(smart_triads(pool)):
+        if t >= opts.max_triads:
+            break
+        cands.fetch([(i, j), (i, k), (j, k)])
+        hyp = triangles(db, frame, cands, i, j, k)
+        if len(hyp) == 0:
+            continue
+        rest = np.delete(order, (i, j, k))
+        ok, rot = confirm_fourth(db, frame, (i, j, k), hyp, rest)
+        if n > 3:
+            hyp, rot = hyp[ok], rot[ok]
+        if len(hyp) == 0:
+            continue
+        lam = triangle_false_rate(frame, i, j, k, n_stars, db.clumping3)
+        matches = []
+        for h in range(len(hyp)):  # hypotheses that survived the pyramid: a handful
+            n_hyp += 1
+            m = verify(db, frame, np.array([i, j, k]), hyp[h], lam, opts.false_alarm, rot=rot[h])
+            if m is not None:
+                matches.append(m)
+        best, status = best_of(matches, frame.match_tol_rad)
+        if best is not None:
+            return best, "ok", n_hyp
+        ambiguous |= status.startswith("ambiguous")
+    if ambiguous:
+        return None, "ambiguous: two different attitudes verified", n_hyp
+    return None, "no triad was confirmed and verified", n_hyp

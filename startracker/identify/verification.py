@@ -1,0 +1,237 @@
+"""The verification every method ends with, and the false-alarm rule that decides acceptance.
+
+A hypothesis (some detections paired with navigation stars) gives an attitude (Wahba, SVD). Every
+detection is rotated into ICRS and matched to the nearest navigation star within the verification
+radius (the same as re-projecting the catalog into the image and matching there, but in angle space,
+so it holds across the whole detector), one catalog star per detection; the attitude is refitted on all
+matches and the matching repeated once.
+
+Acceptance. A wrong hypothesis built from three detections is a catalog triangle that happens to fit
+the measured one. For a triangle with sides known to ``±ε`` the expected number of such catalog
+triangles (with the right handedness) is, for ``N`` stars spread over the sphere,
+
+    λ = 2 N³ ε³ R / π · c₃
+
+with ``R`` the triangle's circumradius (small-angle geometry: ``λ`` grows as the triangle flattens,
+where mirror images become ambiguous) and ``c₃ = ⟨ρ³⟩ / ⟨ρ⟩³`` the clumping of the catalog (Milky Way),
+measured once per database. Under a wrong attitude each other detection lands within the verification
+radius ``r`` of some catalog star with probability ``p = ρ_eff π r²``. A hypothesis is accepted with
+``3 + e`` matches only when ``λ · P(Binomial(n − 3, p) ≥ e) ≤ false_alarm`` (and ``e ≥ 1`` whenever a
+fourth detection exists), so the required number of confirming stars grows with loose tolerances,
+dense catalogs and many detections, and shrinks for precise measurements.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from startracker.identify.frame import Frame
+
+__all__ = ["Match", "fast_rotation", "triangle_false_rate", "required_matches", "verify", "match_detections"]
+
+
+@dataclass
+class Match:
+    """A verified identification.
+
+    Attributes
+    ----------
+    rot : ndarray, shape (3, 3)
+        Camera -> ICRS rotation matrix from the last fit.
+    det : ndarray of int, shape (m,)
+        Matched detections (frame indices).
+    nav : ndarray of int, shape (m,)
+        Their navigation-catalog indices.
+    n_required : int
+        Matches the false-alarm rule asked for.
+    rms_rad : float
+        RMS angular residual of the matches.
+    """
+
+    rot: np.ndarray
+    det: np.ndarray
+    nav: np.ndarray
+    n_required: int
+    rms_rad: float
+
+    @property
+    def n_matched(self) -> int:
+        return len(self.det)
+
+
+def fast_rotation(b, r) -> np.ndarray:
+    """Unweighted Wahba rotation(s) by SVD (Markley), ``r ≈ R @ b``.
+
+    Parameters
+    ----------
+    b : ndarray, shape (..., m, 3)
+        Measured unit vectors (camera frame).
+    r : ndarray, shape (..., m, 3)
+        Reference unit vectors (ICRS).
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Proper rotation matrices. Used to score hypotheses; the reported attitude comes from
+        :func:`startracker.attitude.solve_wahba`.
+    """
+    att = np.swapaxes(r, -1, -2) @ b
+    u, _, vt = np.linalg.svd(att)
+    rot = u @ vt
+    if rot.ndim == 2:
+        det = (rot[0, 0] * (rot[1, 1] * rot[2, 2] - rot[1, 2] * rot[2, 1])
+               - rot[0, 1] * (rot[1, 0] * rot[2, 2] - rot[1, 2] * rot[2, 0])
+               + rot[0, 2] * (rot[1, 0] * rot[2, 1] - rot[1, 1] * rot[2, 0]))
+        if det < 0:
+            u[:, 2] = -u[:, 2]
+            rot = u @ vt
+        return rot
+    flip = np.linalg.det(rot) < 0
+    if np.any(flip):
+        u[..., :, 2] = np.where(flip[..., None], -u[..., :, 2], u[..., :, 2])
+        rot = u @ vt
+    return rot
+
+
+def triangle_false_rate(frame: Frame, i: int, j: int, k: int, n_stars: float, clumping: float) -> float:
+    """Expected number of wrong catalog triangles matching detections (i, j, k), ``λ`` above."""
+    a, b, c = frame.angle_rad[i, j], frame.angle_rad[i, k], frame.angle_rad[j, k]
+    eps = (frame.pair_tol_rad[i, j] * frame.pair_tol_rad[i, k] * frame.pair_tol_rad[j, k]) ** (1.0 / 3.0)
+    s = 0.5 * (a + b + c)
+    area2 = max(s * (s - a) * (s - b) * (s - c), 0.0)
+    area = math.sqrt(area2)
+    radius = a * b * c / (4.0 * area) if area > 0 else np.inf
+    radius = min(radius, 10.0)
+    return 2.0 * n_stars**3 * eps**3 * radius / math.pi * clumping
+
+
+def _binom_tail(n: int, p: float, e: int) -> float:
+    """P(Binomial(n, p) >= e), summed from the tail (accurate for tiny p)."""
+    if e <= 0:
+        return 1.0
+    if e > n:
+        return 0.0
+    q = 1.0 - p
+    total = 0.0
+    for x in range(e, min(n, e + 40) + 1):
+        total += math.comb(n, x) * p**x * q ** (n - x)
+    return min(total, 1.0)
+
+
+def required_matches(lam: float, n_det: int, p: float, false_alarm: float) -> int:
+    """Smallest number of matched detections that keeps ``λ · P(chance confirmations)`` below the limit.
+
+    Parameters
+    ----------
+    lam : float
+        Expected number of wrong hypotheses of this kind.
+    n_det : int
+        Usable detections in the frame.
+    p : float
+        Probability that one detection lands near some catalog star under a wrong attitude.
+    false_alarm : float
+
+    Returns
+    -------
+    int
+        ``3 + e``; more than ``n_det`` when no number of matches would be convincing.
+    """
+    n_other = n_det - 3
+    e = 1 if n_other >= 1 else 0
+    while e <= n_other:
+        if lam * _binom_tail(n_other, p, e) <= false_alarm:
+            return 3 + e
+        e += 1
+    return n_det + 1
+
+
+def match_detections(db, v_icrs: np.ndarray, tol_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nearest navigation star of each direction within ``tol_rad``, one star per detection.
+
+    Parameters
+    ----------
+    db : StarDatabase
+    v_icrs : ndarray, shape (n, 3)
+        Detections rotated into ICRS.
+    tol_rad : float
+
+    Returns
+    -------
+    det, nav : ndarray of int, shape (m,)
+        Matched detection rows and navigation indices (a star claimed twice keeps the nearer detection).
+    dist : ndarray, shape (m,)
+        Chord distances.
+    """
+    chord = 2.0 * math.sin(tol_rad / 2.0)
+    dist, idx = db.tree.query(v_icrs, k=1, distance_upper_bound=chord)
+    det = np.flatnonzero(dist <= chord)
+    nav = idx[det]
+    d = dist[det]
+    if len(nav) > 1 and len(np.unique(nav)) < len(nav):
+        o = np.lexsort((d, nav))
+        first = np.ones(len(o), dtype=bool)
+        first[1:] = nav[o][1:] != nav[o][:-1]
+        keep = np.sort(o[first])
+        det, nav, d = det[keep], nav[keep], d[keep]
+    return det, nav, d
+
+
+def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, rot=None) -> Match | None:
+    """Check one hypothesis against all detections; a :class:`Match` when it passes, else None.
+
+    Parameters
+    ----------
+    db : StarDatabase
+    frame : Frame
+    det_idx, nav_idx : array_like of int, shape (h,)
+        The hypothesis: detection ``det_idx[t]`` is navigation star ``nav_idx[t]`` (h >= 2).
+    lam : float
+        Expected number of wrong hypotheses of this kind (:func:`triangle_false_rate`).
+    false_alarm : float
+    rot : ndarray, shape (3, 3), optional
+        The hypothesis attitude if already computed.
+    """
+    nav_vec = db.nav.vectors
+    if rot is None:
+        rot = fast_rotation(frame.v[det_idx], nav_vec[nav_idx])
+    tol = frame.match_tol_rad
+    n_req = required_matches(lam, frame.n, db.p_random(tol), false_alarm)
+    if n_req > frame.n:
+        return None
+    det, nav, _ = match_detections(db, frame.v @ rot.T, tol)
+    if len(det) < n_req:
+        return None
+    # Refit on every match (the triad attitude is poor far from the triad) and match again.
+    rot = fast_rotation(frame.v[det], nav_vec[nav])
+    det2, nav2, dist = match_detections(db, frame.v @ rot.T, tol)
+    if len(det2) < n_req:
+        return None
+    if len(det2) != len(det) or not (np.array_equal(det2, det) and np.array_equal(nav2, nav)):
+        rot = fast_rotation(frame.v[det2], nav_vec[nav2])
+    rms = float(np.sqrt(np.mean(dist * dist)))  # chord ~ angle at these scales
+    return Match(rot=rot, det=det2, nav=nav2, n_required=n_req, rms_rad=rms)
+
+
+def best_of(matches: list[Match], tol_rad: float) -> tuple[Match | None, str]:
+    """The hypothesis to report among verified ones; refuse when two different attitudes both pass.
+
+    Two matches that agree on the attitude (within the verification radius) are the same answer. When
+    they disagree the one with more matches wins only if it has at least twice as many confirming stars
+    beyond the required number; otherwise the frame is ambiguous.
+    """
+    if not matches:
+        return None, "no hypothesis verified"
+    matches = sorted(matches, key=lambda m: (-m.n_matched, m.rms_rad))
+    best = matches[0]
+    for other in matches[1:]:
+        c = (np.trace(best.rot.T @ other.rot) - 1.0) / 2.0
+        ang = math.acos(max(-1.0, min(1.0, c)))
+        if ang > tol_rad:
+            margin_best = best.n_matched - 3
+            margin_other = other.n_matched - 3
+            if margin_best < 2 * margin_other + 2:
+                return None, "ambiguous: two different attitudes verified"
+    return best, "ok"

@@ -1,0 +1,555 @@
+"""Scene truth: which catalog stars fall where on the detector, at which instants of a camera frame.
+
+A frame of period ``T`` holds ``N`` exposures of length ``τ`` (the multi-exposure imaging approach,
+MEIA, of paper 000 and its reference [22]): exposure ``i`` starts at ``t0 + offset + i Δt``. Each
+exposure is stamped with its **mid instant**, and the attitude solved from the spots of exposure ``i``
+carries that timestamp (DESIGN.md §2, Time). ``N = 1`` is the ordinary single-exposure frame.
+
+Choosing N from the angular rate (:func:`choose_n_exposures`)
+--------------------------------------------------------------
+With the exposures spread evenly over the frame (``Δt = T / N``) a star whose image moves at
+``v`` px/s leaves a streak of length ``v τ`` per exposure, and the gap between the end of one streak
+and the start of the next is ``v (T/N - τ)``. The **no-overlap rule** asks that gap to be at least
+``k σ`` (default ``k = 6``: the 3σ halos of consecutive spots do not touch)::
+
+    v (T/N - τ) >= k σ    <=>    N <= v T / (v τ + k σ)
+
+so ``N = clip(floor(v T / (v τ + k σ)), 1, n_max)``, which is non-decreasing in the rate. ``v`` is the
+slowest image motion over the detector, so the rule holds for every star: for a scalar rate (a
+cross-boresight slew, the turntable experiment of paper 000) ``v = f ω`` with ``f`` in pixels, the
+image speed at the principal point; for an angular-velocity vector it is the minimum of the exact
+pinhole motion field over a grid of detector points (a roll about the boresight has a still point,
+so large roll rates push N down). Paper 000's camera (f = 5807 px) at 20°/s with 10 Hz frames,
+τ = 1 ms and σ = 1.2 px gives ``v = 2027 px/s`` and ``N = floor(21.97) = 21``: a 210 Hz update rate,
+the figure of paper 000 §1 (and §5: N goes from 1 to 21 as the rate goes from 0 to 20°/s).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from startracker.catalog import StarCatalog
+from startracker.optics import Camera
+from startracker.rotations import as_float_array, quat_from_matrix, quat_interpolate, quat_to_matrix
+
+__all__ = [
+    "ExposurePlan",
+    "choose_n_exposures",
+    "min_image_speed_px_s",
+    "BrightBody",
+    "BrightBodyView",
+    "Scene",
+    "compute_scene",
+]
+
+
+def _positive(value, name: str, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be finite and {bound}, got {value!r}")
+    return v
+
+
+def _int_at_least(value, name: str, lo: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
+    if int(value) < lo:
+        raise ValueError(f"{name} must be >= {lo}, got {value}")
+    return int(value)
+
+
+# --------------------------------------------------------------------------------------------- plan
+@dataclass(frozen=True)
+class ExposurePlan:
+    """The exposures inside one camera frame.
+
+    Parameters
+    ----------
+    n_exposures : int
+        N >= 1 exposures per frame (1 = single exposure).
+    exposure_s : float
+        Length τ of each exposure, s (> 0).
+    spacing_s : float, optional
+        Δt between the starts of consecutive exposures, s; at least ``exposure_s`` when N > 1.
+        Default ``frame_period_s / n_exposures`` (evenly spread: the attitude stream is uniform in time
+        across frames, at ``N / frame_period_s`` Hz).
+    frame_period_s : float
+        Frame period T, s (> 0). 0.1 s is the 10 Hz of paper 000.
+    start_offset_s : float
+        Delay from the frame start to the start of the first exposure, s (>= 0).
+
+    Raises
+    ------
+    ValueError
+        N < 1, non-positive or non-finite times, overlapping exposures, or exposures that do not fit in
+        the frame (``start_offset + (N-1) Δt + τ > T``).
+    """
+
+    n_exposures: int = 1
+    exposure_s: float = 0.1
+    spacing_s: float | None = None
+    frame_period_s: float = 0.1
+    start_offset_s: float = 0.0
+
+    def __post_init__(self):
+        n = _int_at_least(self.n_exposures, "n_exposures", 1)
+        tau = _positive(self.exposure_s, "exposure_s")
+        period = _positive(self.frame_period_s, "frame_period_s")
+        offset = _positive(self.start_offset_s, "start_offset_s", allow_zero=True)
+        spacing = period / n if self.spacing_s is None else _positive(self.spacing_s, "spacing_s", allow_zero=True)
+        if n > 1 and spacing < tau * (1 - 1e-12):
+            raise ValueError(f"spacing_s ({spacing}) must be >= exposure_s ({tau}) so that exposures do not overlap")
+        span = offset + (n - 1) * spacing + tau
+        if span > period * (1 + 1e-9):
+            raise ValueError(
+                f"exposures do not fit in the frame: start_offset_s + (n_exposures-1)*spacing_s + exposure_s = {span:.6g} s"
+                f" > frame_period_s = {period:.6g} s"
+            )
+        object.__setattr__(self, "n_exposures", n)
+        object.__setattr__(self, "exposure_s", tau)
+        object.__setattr__(self, "spacing_s", float(spacing))
+        object.__setattr__(self, "frame_period_s", period)
+        object.__setattr__(self, "start_offset_s", offset)
+
+    # ------------------------------------------------------------------ timing
+    def exposure_start_times(self, t_frame_start: float) -> np.ndarray:
+        """Start instant of each exposure, s, shape (N,)."""
+        t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))
+        return t0 + self.start_offset_s + self.spacing_s * np.arange(self.n_exposures)
+
+    def exposure_mid_times(self, t_frame_start: float) -> np.ndarray:
+        """Timestamp of each exposure (its mid instant), s, shape (N,)."""
+        return self.exposure_start_times(t_frame_start) + 0.5 * self.exposure_s
+
+    def exposure_end_times(self, t_frame_start: float) -> np.ndarray:
+        """End instant of each exposure, s, shape (N,)."""
+        return self.exposure_start_times(t_frame_start) + self.exposure_s
+
+    @property
+    def integration_window_s(self) -> float:
+        """From the start of the first exposure to the end of the last, s (the detector integrates dark
+        current and cosmic rays over this window; light only during the exposures)."""
+        return (self.n_exposures - 1) * self.spacing_s + self.exposure_s
+
+    @property
+    def total_exposure_s(self) -> float:
+        """Summed open time N τ, s (sky and stray light accumulate over it)."""
+        return self.n_exposures * self.exposure_s
+
+    @property
+    def update_rate_hz(self) -> float:
+        """Attitude updates per second, N / T."""
+        return self.n_exposures / self.frame_period_s
+
+    # ------------------------------------------------------------------ adaptive plan
+    @classmethod
+    def for_rate(
+        cls,
+        rate_rad_s,
+        camera: Camera,
+        frame_period_s: float = 0.1,
+        exposure_s: float = 1.0e-3,
+        psf_sigma_px: float = 1.2,
+        n_max: int = 21,
+        min_gap_sigma: float = 6.0,
+    ) -> "ExposurePlan":
+        """The MEIA plan for an angular rate: N from :func:`choose_n_exposures`, spread evenly.
+
+        Parameters are those of :func:`choose_n_exposures`. Returns an ``ExposurePlan`` with
+        ``spacing_s = frame_period_s / N`` and no start offset.
+        """
+        n = choose_n_exposures(rate_rad_s, camera, frame_period_s, exposure_s, psf_sigma_px, n_max, min_gap_sigma)
+        return cls(n_exposures=n, exposure_s=exposure_s, spacing_s=frame_period_s / n, frame_period_s=frame_period_s)
+
+
+def _flow_matrices(camera: Camera, n_grid: int = 7) -> np.ndarray:
+    """Pinhole motion-field matrices J (P, 2, 3) at a grid of detector points: ``xy_dot = J @ ω_cam``.
+
+    For a star direction u fixed in inertial space, the camera-frame direction obeys du/dt = -ω × u;
+    differentiating the pinhole ``x = f X/Z, y = f Y/Z`` (f in px, x, y from the principal point)
+    gives  ẋ = (x y / f) ω_x - (f + x²/f) ω_y + y ω_z,  ẏ = (f + y²/f) ω_x - (x y / f) ω_y - x ω_z.
+    """
+    f = camera.focal_length_px
+    w, h = camera.resolution
+    cx, cy = camera.principal_point
+    xs = np.linspace(-0.5, w - 0.5, n_grid) - cx
+    ys = np.linspace(-0.5, h - 0.5, n_grid) - cy
+    x, y = (a.ravel() for a in np.meshgrid(xs, ys))
+    j = np.empty((len(x), 2, 3))
+    j[:, 0, 0] = x * y / f
+    j[:, 0, 1] = -(f + x * x / f)
+    j[:, 0, 2] = y
+    j[:, 1, 0] = f + y * y / f
+    j[:, 1, 1] = -x * y / f
+    j[:, 1, 2] = -x
+    return j
+
+
+def min_image_speed_px_s(rate_rad_s, camera: Camera) -> float:
+    """Slowest star-image speed over the detector, px/s.
+
+    Parameters
+    ----------
+    rate_rad_s : float or array_like, shape (3,)
+        A scalar is the magnitude of a cross-boresight rate (image speed ``f ω`` at the principal point,
+        the minimum over the detector for such a rotation). A 3-vector is the body-frame angular
+        velocity, rad/s: it is rotated into the camera frame with ``camera.q_cam_to_body`` and the
+        exact pinhole motion field is minimised over a 7×7 grid of detector points.
+    camera : Camera
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a startracker.optics.Camera, got {type(camera).__name__}")
+    w = as_float_array(rate_rad_s, "rate_rad_s")
+    if w.ndim == 0:
+        if w < 0:
+            raise ValueError(f"rate_rad_s must be >= 0 when given as a magnitude, got {float(w)}")
+        return float(camera.focal_length_px * w)
+    if w.shape != (3,):
+        raise ValueError(f"rate_rad_s must be a scalar or a (3,) body-frame vector, got shape {w.shape}")
+    w_cam = camera.r_cam_to_body.T @ w
+    speeds = np.linalg.norm(_flow_matrices(camera) @ w_cam, axis=1)
+    return float(speeds.min())
+
+
+def choose_n_exposures(
+    rate_rad_s,
+    camera: Camera,
+    frame_period_s: float = 0.1,
+    exposure_s: float = 1.0e-3,
+    psf_sigma_px: float = 1.2,
+    n_max: int = 21,
+    min_gap_sigma: float = 6.0,
+) -> int:
+    """Number of exposures per frame for an angular rate (the no-overlap rule of the module docstring).
+
+    ``N = clip(floor(v T / (v τ + k σ)), 1, n_max)`` with ``v`` = :func:`min_image_speed_px_s`:
+    the largest N whose evenly spread exposures (Δt = T/N) leave a gap of at least ``k σ`` pixels between
+    the end of one streak of a star and the start of the next. Non-decreasing in the rate.
+
+    Parameters
+    ----------
+    rate_rad_s : float or array_like, shape (3,)
+        Cross-boresight rate magnitude (rad/s, >= 0) or body-frame angular velocity vector (rad/s).
+    camera : Camera
+    frame_period_s : float
+        Frame period T, s.
+    exposure_s : float
+        Exposure length τ, s.
+    psf_sigma_px : float
+        PSF standard deviation σ, px.
+    n_max : int
+        Upper bound on N (>= 1); 21 is paper 000's maximum (210 Hz at 10 Hz frames).
+    min_gap_sigma : float
+        k, the required gap in units of σ (> 0).
+
+    Returns
+    -------
+    int
+        N in [1, n_max].
+    """
+    period = _positive(frame_period_s, "frame_period_s")
+    tau = _positive(exposure_s, "exposure_s")
+    sigma = _positive(psf_sigma_px, "psf_sigma_px")
+    k = _positive(min_gap_sigma, "min_gap_sigma")
+    n_max = _int_at_least(n_max, "n_max", 1)
+    if tau > period:
+        raise ValueError(f"exposure_s ({tau}) must not exceed frame_period_s ({period})")
+    v = min_image_speed_px_s(rate_rad_s, camera)
+    n = math.floor(v * period / (v * tau + k * sigma) * (1 + 1e-12))
+    return int(min(max(n, 1), n_max))
+
+
+# --------------------------------------------------------------------------------------------- bodies
+@dataclass(frozen=True)
+class BrightBody:
+    """A bright body off the field of view (stray-light source).
+
+    Parameters
+    ----------
+    name : {"sun", "moon", "earth"}
+        Selects the baffle response in ``SensorModel.stray_light``.
+    direction_world : array_like, shape (3,)
+        Direction from the spacecraft to the body (for the Earth: to the nearest limb point), ICRS.
+    """
+
+    name: str
+    direction_world: tuple[float, float, float]
+
+    def __post_init__(self):
+        if not isinstance(self.name, str):
+            raise TypeError("name must be a string")
+        d = as_float_array(self.direction_world, "direction_world", last_dim=3, ndim=1)
+        n = np.linalg.norm(d)
+        if n == 0:
+            raise ValueError("direction_world must be non-zero")
+        object.__setattr__(self, "direction_world", tuple(float(v) for v in d / n))
+
+
+@dataclass(frozen=True)
+class BrightBodyView:
+    """A bright body as seen by the camera at each exposure mid-time.
+
+    Attributes
+    ----------
+    name : str
+    angle_rad : ndarray, shape (N,)
+        Angle between the boresight and the body, rad.
+    direction_cam : ndarray, shape (N, 3)
+        Unit direction to the body in the camera frame.
+    """
+
+    name: str
+    angle_rad: np.ndarray
+    direction_cam: np.ndarray
+
+
+# --------------------------------------------------------------------------------------------- scene
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """Truth of one camera frame: the stars on the detector at every exposure instant.
+
+    Attributes
+    ----------
+    camera : Camera
+    plan : ExposurePlan
+    t_frame_start : float
+        s.
+    times : ndarray, shape (N,)
+        Exposure timestamps (mid instants), s.
+    path_times : ndarray, shape (N, S)
+        Instants sampled evenly over each exposure, start to end inclusive (S odd >= 3), s.
+    star_index : ndarray of int, shape (M,)
+        Rows of the catalog.
+    hip, vmag, bv : ndarray, shape (M,)
+        Hipparcos number, V magnitude, B−V of each scene star.
+    xy_path : ndarray, shape (N, S, M, 2)
+        Pixel position (col, row) of each star at each ``path_times`` instant; the image of star m during
+        exposure i is the polyline ``xy_path[i, :, m]`` (smear).
+    visible : ndarray of bool, shape (N, M)
+        The star's position at the exposure mid-time lies on the detector.
+    q_body_to_world : ndarray, shape (N, 4)
+        Attitude at the exposure mid-times.
+    q_cam_to_world : ndarray, shape (N, 4)
+        Camera attitude at the exposure mid-times (``q_body_to_world ⊗ q_cam_to_body``).
+    bright_bodies : tuple of BrightBodyView
+    """
+
+    camera: Camera
+    plan: ExposurePlan
+    t_frame_start: float
+    times: np.ndarray
+    path_times: np.ndarray
+    star_index: np.ndarray
+    hip: np.ndarray
+    vmag: np.ndarray
+    bv: np.ndarray
+    xy_path: np.ndarray
+    visible: np.ndarray
+    q_body_to_world: np.ndarray
+    q_cam_to_world: np.ndarray
+    bright_bodies: tuple = field(default=())
+
+    @property
+    def n_exposures(self) -> int:
+        return self.plan.n_exposures
+
+    @property
+    def n_stars(self) -> int:
+        return len(self.star_index)
+
+    @property
+    def xy(self) -> np.ndarray:
+        """Positions at the exposure mid-times, shape (N, M, 2), px."""
+        return self.xy_path[:, self.xy_path.shape[1] // 2]
+
+    @property
+    def xy_start(self) -> np.ndarray:
+        """Positions at the exposure starts, shape (N, M, 2), px."""
+        return self.xy_path[:, 0]
+
+    @property
+    def xy_end(self) -> np.ndarray:
+        """Positions at the exposure ends, shape (N, M, 2), px."""
+        return self.xy_path[:, -1]
+
+    @property
+    def xy_mean(self) -> np.ndarray:
+        """Time-averaged position over each exposure (where the light's centre of mass falls), (N, M, 2).
+
+        Trapezoid rule over the path samples; equal to ``xy`` for motion uniform in time along a line.
+        """
+        p = self.xy_path
+        return (p[:, 1:-1].sum(axis=1) + 0.5 * (p[:, 0] + p[:, -1])) / (p.shape[1] - 1)
+
+    @property
+    def smear_px(self) -> np.ndarray:
+        """Length of each streak (polyline length), shape (N, M), px."""
+        return np.linalg.norm(np.diff(self.xy_path, axis=1), axis=-1).sum(axis=1)
+
+    @property
+    def velocity_px_s(self) -> np.ndarray:
+        """Mean image velocity during each exposure, shape (N, M, 2), px/s."""
+        return (self.xy_end - self.xy_start) / self.plan.exposure_s
+
+
+AttitudeLike = Callable[[np.ndarray], np.ndarray] | tuple
+
+
+def _evaluate_attitude(attitude, t: np.ndarray) -> np.ndarray:
+    if callable(attitude):
+        q = attitude(t)
+        try:
+            q = np.asarray(q, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError("attitude(t) must return a numeric array of shape (len(t), 4)") from None
+        if q.shape != (len(t), 4):
+            raise ValueError(f"attitude(t) must return shape ({len(t)}, 4) (w, x, y, z), got {q.shape}")
+    elif isinstance(attitude, (tuple, list)) and len(attitude) == 2:
+        t_s, q_s = attitude
+        q = quat_interpolate(t_s, q_s, t)
+    else:
+        raise TypeError("attitude must be a callable t -> q_body_to_world (len(t), 4) or a tuple (t_samples, q_samples)")
+    if not np.all(np.isfinite(q)):
+        raise ValueError("attitude contains NaN or inf")
+    n = np.linalg.norm(q, axis=1, keepdims=True)
+    if np.any(n < 1e-9):
+        raise ValueError("attitude contains a zero quaternion")
+    return q / n
+
+
+def compute_scene(
+    camera: Camera,
+    catalog: StarCatalog,
+    attitude: AttitudeLike,
+    plan: ExposurePlan,
+    t_frame_start: float = 0.0,
+    *,
+    bright_bodies: Sequence[BrightBody] = (),
+    n_path_samples: int = 3,
+    edge_margin_px: float = 6.0,
+) -> Scene:
+    """Where every catalog star falls on the detector during each exposure of a frame.
+
+    Parameters
+    ----------
+    camera : Camera
+        Its ``q_cam_to_body`` is the mounting.
+    catalog : StarCatalog
+        Stars to image (e.g. ``load_catalog(6.0)``).
+    attitude : callable or tuple
+        ``attitude(t)`` with ``t`` an array of s returning ``q_body_to_world`` (len(t), 4) (w, x, y, z),
+        or a tuple ``(t_samples (S,), q_samples (S, 4))`` interpolated with
+        :func:`startracker.rotations.quat_interpolate` (must cover the exposures).
+    plan : ExposurePlan
+    t_frame_start : float
+        Frame start time, s.
+    bright_bodies : sequence of BrightBody
+        Stray-light sources (sun, moon, Earth limb).
+    n_path_samples : int
+        Odd number S >= 3 of instants sampled over each exposure for the smear path.
+    edge_margin_px : float
+        Stars whose path comes within this margin of the detector are kept (their light reaches the
+        edge pixels); ``visible`` still requires the mid-time position to be on the detector.
+
+    Returns
+    -------
+    Scene
+
+    Notes
+    -----
+    Candidates come from one ``catalog.cone_search`` around the mean boresight, with a radius that covers
+    the detector's corners (unprojected, so distortion is included), the boresight's motion over the
+    frame and the margin; only candidates are projected, at the ``N × S`` path instants.
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a startracker.optics.Camera, got {type(camera).__name__}")
+    if not isinstance(catalog, StarCatalog):
+        raise TypeError(f"catalog must be a StarCatalog, got {type(catalog).__name__}")
+    if not isinstance(plan, ExposurePlan):
+        raise TypeError(f"plan must be an ExposurePlan, got {type(plan).__name__}")
+    t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))
+    s = _int_at_least(n_path_samples, "n_path_samples", 3)
+    if s % 2 == 0:
+        raise ValueError(f"n_path_samples must be odd (the middle sample is the timestamp), got {s}")
+    margin = _positive(edge_margin_px, "edge_margin_px", allow_zero=True)
+    bodies = tuple(bright_bodies)
+    for b in bodies:
+        if not isinstance(b, BrightBody):
+            raise TypeError("bright_bodies must contain BrightBody objects")
+
+    n = plan.n_exposures
+    starts = plan.exposure_start_times(t0)
+    path_times = starts[:, None] + plan.exposure_s * np.linspace(0.0, 1.0, s)[None, :]
+    q_bw = _evaluate_attitude(attitude, path_times.ravel())
+    r_cw = quat_to_matrix(q_bw) @ camera.r_cam_to_body  # (N*S, 3, 3), v_world = R v_cam
+    bores = r_cw[:, :, 2]
+    centre = bores.mean(axis=0)
+    centre /= np.linalg.norm(centre)
+    w_px, h_px = camera.resolution
+    corners = np.array([[-0.5, -0.5], [w_px - 0.5, -0.5], [-0.5, h_px - 0.5], [w_px - 0.5, h_px - 0.5]])
+    v_corner = camera.unproject(corners)
+    half_diag = float(np.arccos(np.clip(v_corner[:, 2].min(), -1.0, 1.0)))
+    drift = float(np.arccos(np.clip((bores @ centre).min(), -1.0, 1.0)))
+    radius = min(half_diag + drift + (margin + 2.0) / camera.focal_length_px + 1e-6, np.pi)
+    idx = catalog.cone_search(centre, radius)
+
+    if len(idx):
+        v_world = catalog.vectors[idx]  # (K, 3)
+        v_cam = np.einsum("tji,kj->tki", r_cw, v_world)  # R^T v for every instant, (N*S, K, 3)
+        xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True)
+        xy = xy.reshape(n * s, len(idx), 2)
+        in_front = in_front.reshape(n * s, len(idx))
+        near = (
+            in_front
+            & (xy[..., 0] >= -0.5 - margin)
+            & (xy[..., 0] <= w_px - 0.5 + margin)
+            & (xy[..., 1] >= -0.5 - margin)
+            & (xy[..., 1] <= h_px - 0.5 + margin)
+        )
+        keep = near.any(axis=0)
+        idx = idx[keep]
+        xy_path = xy[:, keep].reshape(n, s, len(idx), 2).copy()
+        front = in_front[:, keep].reshape(n, s, len(idx)).all(axis=1)
+    else:
+        xy_path = np.zeros((n, s, 0, 2))
+        front = np.zeros((n, 0), dtype=bool)
+    mid = xy_path[:, s // 2]
+    visible = (
+        front
+        & (mid[..., 0] >= -0.5)
+        & (mid[..., 0] <= w_px - 0.5)
+        & (mid[..., 1] >= -0.5)
+        & (mid[..., 1] <= h_px - 0.5)
+    )
+
+    mid_rows = np.arange(n) * s + s // 2
+    q_mid = q_bw[mid_rows]
+    r_cw_mid = r_cw[mid_rows]
+    views = []
+    for b in bodies:
+        d_cam = np.einsum("tji,j->ti", r_cw_mid, np.asarray(b.direction_world))
+        views.append(BrightBodyView(b.name, np.arccos(np.clip(d_cam[:, 2], -1.0, 1.0)), d_cam))
+
+    return Scene(
+        camera=camera,
+        plan=plan,
+        t_frame_start=t0,
+        times=path_times[:, s // 2].copy(),
+        path_times=path_times,
+        star_index=idx.astype(np.int64),
+        hip=catalog.hip[idx],
+        vmag=catalog.vmag[idx],
+        bv=catalog.bv[idx],
+        xy_path=xy_path,
+        visible=visible,
+        q_body_to_world=q_mid,
+        q_cam_to_world=quat_from_matrix(r_cw_mid),
+        bright_bodies=tuple(views),
+    )

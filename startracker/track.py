@@ -1,0 +1,766 @@
+"""Tracking mode: star prediction, observed-to-predicted matching (DKVLUT, brute force, k-d tree), and
+the grouping of a multi-exposure frame's matches into one attitude per exposure instant.
+
+Paper 000 (Yu et al., Sensors 2021, 21, 3176) is the reference. A multi-exposure frame holds W = N·M spots
+(N exposure instants, M navigation stars) in scan order; from the last attitude, rate and acceleration the
+W spots are *predicted* in instant order (Fig. 1b), every observed spot is matched to the nearest predicted
+spot inside the star-neighbourhood radius r, and the matches of each instant give one Wahba attitude.
+
+Matchers (identical results, enforced by a property test)
+---------------------------------------------------------
+``"dkvlut"``
+    Paper 000 §3: one k-vector per axis over the predicted coordinates (:class:`~startracker.kvector.KVector`:
+    S, R, K, the line h = a1·i + b1 of eqs. 1-3). For every observed point at once: the line indices
+    ``i_a = floor((x_p - r - b1)/a1)``, ``i_b = ceil((x_p + r - b1)/a1)`` (eq. 4), the candidate range
+    ``u ∈ [K(i_a), K(i_b)]`` (eq. 5), ``R(u)`` the candidates, the intersection of the x and y candidate
+    sets (eq. 6) and the nearest of the intersection (case c). The intersection is a square of side 2r; a
+    final ``d² <= r²`` check turns it into the disc, so the result equals brute force within the radius.
+``"brute"``
+    Paper 000 §2, the "existing method": every observed point against every predicted point (a full
+    distance matrix, in blocks of observed points).
+``"kdtree"``
+    :class:`scipy.spatial.cKDTree` over the predicted points, nearest neighbour with an upper bound.
+
+Match rule shared by all three: observed point q takes the predicted point p minimising
+``d² = (x_q - x_p)² + (y_q - y_p)²`` (float64, this exact expression) among those with ``d² <= r²``;
+ties go to the lowest predicted index; ``-1`` when none lies within r.
+
+Prediction radius rule
+----------------------
+With σ_c the 1σ per-axis centroid noise (px) and σ_pred the 1σ per-axis prediction error (px) from the
+attitude, rate and acceleration uncertainty propagated to the exposure instant (:func:`prediction_sigma_px`),
+the observed-minus-predicted offset is a 2-D Gaussian of per-axis σ = √(σ_c² + σ_pred²), whose norm is
+Rayleigh distributed: ``P(|e| > kσ) = exp(-k²/2)``. The radius is ``r = k σ`` with k = 6 (a true spot is
+missed with probability 1.5e-8), clipped to ``[r_min, r_max]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from startracker.attitude import RAD_TO_ARCSEC, solve_wahba_batch
+from startracker.catalog import StarCatalog
+from startracker.kvector import KVector
+from startracker.optics import Camera
+from startracker.rotations import (
+    as_float_array,
+    quat_integrate,
+    quat_multiply,
+    quat_normalize,
+    quat_to_matrix,
+)
+
+__all__ = [
+    "MATCH_METHODS",
+    "DKVLUT",
+    "match_stars",
+    "PredictedStars",
+    "predict_star_positions",
+    "prediction_sigma_px",
+    "prediction_radius_px",
+    "InstantAttitudes",
+    "attitudes_per_instant",
+    "SyntheticFrame",
+    "synthetic_frame",
+]
+
+MATCH_METHODS = ("dkvlut", "brute", "kdtree")
+RADIUS_K_SIGMA = 6.0  # P(true spot outside r) = exp(-k²/2) = 1.5e-8
+_BRUTE_BLOCK = 2_000_000  # max elements of one distance block (16 MB)
+
+
+# --------------------------------------------------------------------------------------------- matching
+def _check_points(a, name: str) -> np.ndarray:
+    if isinstance(a, (str, bytes)):
+        raise TypeError(f"{name} must be a numeric array of shape (K, 2), got {type(a).__name__}")
+    try:
+        arr = np.asarray(a, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be a numeric array of shape (K, 2): {exc}") from None
+    if arr.size == 0:
+        return np.empty((0, 2))
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (K, 2), got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or inf")
+    return arr
+
+
+def _check_radius(radius_px) -> float:
+    if isinstance(radius_px, (bool, np.bool_)) or not isinstance(radius_px, (int, float, np.integer, np.floating)):
+        raise TypeError(f"radius_px must be a real number, got {type(radius_px).__name__}")
+    r = float(radius_px)
+    if not np.isfinite(r) or r < 0:
+        raise ValueError(f"radius_px must be finite and >= 0, got {radius_px}")
+    return r
+
+
+def _nearest_per_query(qi, e, d2, n_obs: int) -> np.ndarray:
+    """From candidate pairs (query qi, predicted e, squared distance d2) within the radius, the nearest
+    predicted index per query, ties to the lowest index; -1 for queries without a candidate."""
+    idx = np.full(n_obs, -1, dtype=np.int64)
+    if len(qi) == 0:
+        return idx
+    o = np.lexsort((e, d2, qi))
+    qs = qi[o]
+    first = np.empty(len(qs), dtype=bool)
+    first[0] = True
+    np.not_equal(qs[1:], qs[:-1], out=first[1:])
+    idx[qs[first]] = e[o][first]
+    return idx
+
+
+class DKVLUT:
+    """Paper 000's double k-vector lookup table over the predicted star points.
+
+    Parameters
+    ----------
+    predicted_xy : array_like, shape (W, 2)
+        Predicted spot centroids (column, row) in px, W >= 1, in any order.
+
+    Attributes
+    ----------
+    kx, ky : KVector
+        The tables of eqs. 1-3 per axis: ``kx.sorted_values`` = S_x, ``kx.order`` = R_x (0-based),
+        ``kx.k`` = K_x, ``kx.a1``, ``kx.b1``.
+
+    Notes
+    -----
+    The intersection of eq. 6 is computed without sets: walking the shorter candidate lists (x or y over the
+    whole frame), a candidate belongs to the other axis' set when its row in that axis' table (the inverse
+    permutation of R) lies inside that axis' range ``[u_a, u_b]``, an O(1) test.
+    """
+
+    __slots__ = (
+        "xy", "kx", "ky", "n", "_xy_t", "_k_table", "_row_offset", "_inv_a", "_sign_inv_a", "_c", "_rank",
+        "_degenerate", "_any_degenerate",
+    )
+
+    def __init__(self, predicted_xy):
+        xy = _check_points(predicted_xy, "predicted_xy")
+        if len(xy) == 0:
+            raise ValueError("predicted_xy must contain at least one point")
+        self.xy = xy
+        self.n = n = len(xy)
+        self._xy_t = np.ascontiguousarray(xy.T)  # (2, W): x row, y row
+        self.kx = KVector(self._xy_t[0])
+        self.ky = KVector(self._xy_t[1])
+        # Eq. 5 in one gather for both axes: rows u_a = K(i_a) (1-based) -> 0-based start K(i_a) - 1,
+        # u_b = K(i_b) -> 0-based exclusive stop K(i_b); x then y.
+        kx, ky = self.kx.k, self.ky.k
+        self._k_table = np.concatenate([np.maximum(kx - 1, 0), kx, np.maximum(ky - 1, 0), ky])
+        self._row_offset = np.array([[-1], [n - 1], [2 * n - 1], [3 * n - 1]], dtype=np.int64)
+        # Eq. 4 as h = (x ∓ r) / a1 + c with c = (∓tol - b1) / a1. The tolerance (1e-9 of the coordinate
+        # scale) widens every range so floor/ceil rounding can never drop a point.
+        inv_a, sign_inv_a, c = np.zeros((4, 1)), np.zeros((4, 1)), np.zeros((4, 1))
+        self._degenerate = []
+        for row, kv in ((0, self.kx), (2, self.ky)):
+            s0, s1, a1, b1 = kv.sorted_values[0], kv.sorted_values[-1], kv.a1, kv.b1
+            tol = 1e-9 * (abs(s0) + abs(s1) + a1)
+            # Coordinates (nearly) all equal: the line is meaningless in floating point; every query
+            # touching [S(1), S(l_s)] gets the whole table, still a superset of the answer.
+            degenerate = not (a1 > 1e-9 * max(1.0, abs(s0), abs(s1)))
+            self._degenerate.append(degenerate)
+            if not degenerate:
+                inv_a[row : row + 2] = 1.0 / a1
+                sign_inv_a[row : row + 2, 0] = (-1.0 / a1, 1.0 / a1)
+                c[row : row + 2, 0] = ((-tol - b1) / a1, (tol - b1) / a1)
+        self._inv_a, self._sign_inv_a, self._c = inv_a, sign_inv_a, c
+        self._any_degenerate = any(self._degenerate)
+        self._rank = [None, None]
+
+    @staticmethod
+    def _scale(kv: KVector) -> float:
+        return 1e-9 * (abs(kv.sorted_values[0]) + abs(kv.sorted_values[-1]) + kv.a1)
+
+    def _ranges(self, obs_t: np.ndarray, r: float) -> np.ndarray:
+        """Eqs. 4-5 for both axes: rows (start_x, stop_x, start_y, stop_y) of 0-based half-open slices
+        ``[K(i_a) - 1, K(i_b))`` of the sorted tables (the paper's 1-based ``u ∈ [K(i_a), K(i_b)]``)."""
+        h = obs_t[[0, 0, 1, 1]]  # x_p, x_p, y_p, y_p
+        h *= self._inv_a
+        h += self._c + r * self._sign_inv_a  # (x_p ∓ r ∓ tol - b1) / a1
+        if not np.isfinite(h).all():  # only for coordinates near the float range limits
+            h[0::2] = np.nan_to_num(h[0::2], nan=1.0)
+            h[1::2] = np.nan_to_num(h[1::2], nan=float(self.n))
+        np.clip(h, 1, self.n, out=h)  # i in [1, l_s]; for the i_a rows truncation below is the floor
+        np.ceil(h[1::2], out=h[1::2])  # i_b = ceil(...)
+        i = h.astype(np.int64)
+        i += self._row_offset
+        u = self._k_table[i]
+        if self._any_degenerate:
+            for row, (kv, deg) in enumerate(zip((self.kx, self.ky), self._degenerate)):
+                if deg:
+                    o = obs_t[row]
+                    touch = (o + r >= kv.sorted_values[0]) & (o - r <= kv.sorted_values[-1])
+                    u[2 * row] = 0
+                    u[2 * row + 1] = np.where(touch, self.n, 0)
+        return u
+
+    def candidate_ranges(self, observed_xy, radius_px):
+        """Candidate table rows of every observed point on both axes (eqs. 4-5).
+
+        Returns
+        -------
+        (start_x, stop_x), (start_y, stop_y) : tuples of ndarray of int, shape (Q,)
+            ``kx.order[start_x[q]:stop_x[q]]`` is R_x(u_x) for observed point q (0-based predicted indices),
+            i.e. the paper's 1-based rows ``u_x = K_x(i_a) .. K_x(i_b)``.
+        """
+        obs = _check_points(observed_xy, "observed_xy")
+        u = self._ranges(obs.T, _check_radius(radius_px))
+        return (u[0], u[1]), (u[2], u[3])
+
+    def candidates(self, observed_xy, radius_px) -> tuple[np.ndarray, np.ndarray]:
+        """The intersection set R_P of eq. 6 for every observed point, as (query, predicted) pairs.
+
+        Returns
+        -------
+        query_index, predicted_index : ndarray of int, shape (P,)
+            Pairs with the predicted point in both the x and the y candidate set, grouped by query.
+        """
+        obs = _check_points(observed_xy, "observed_xy")
+        return self._intersection(obs.T, _check_radius(radius_px))
+
+    def _intersection(self, obs_t: np.ndarray, r: float):
+        u = self._ranges(obs_t, r)
+        counts = u[1::2] - u[0::2]
+        np.maximum(counts, 0, out=counts)
+        tot = counts.sum(axis=1)
+        a = 0 if tot[0] <= tot[1] else 1  # walk the axis with fewer candidates
+        cnt = counts[a]
+        nq = obs_t.shape[1]
+        # One repeat expands, per candidate: its query, its offset into the table, the other axis' range.
+        rows = np.empty((4, nq), dtype=np.int64)
+        rows[0] = np.arange(nq)
+        np.cumsum(cnt, out=rows[1])
+        rows[1] -= cnt
+        rows[1] -= u[2 * a]
+        rows[2:] = u[2 - 2 * a : 4 - 2 * a]
+        rep = np.repeat(rows, cnt, axis=1)
+        pos = np.arange(int(tot[a])) - rep[1]  # walked table rows u in [u_a, u_b]
+        ro = self._cross(a)[pos]  # the same stars' rows in the other axis' table
+        keep = (ro >= rep[2]) & (ro < rep[3])  # R_x(u_x) ∩ R_y(u_y), eq. 6
+        return rep[0][keep], (self.kx, self.ky)[a].order[pos[keep]]
+
+    def _cross(self, axis: int) -> np.ndarray:
+        """Row in the other axis' table of each row of ``axis``'s table: ``rank_other[R_axis]``."""
+        if self._rank[axis] is None:
+            tables = (self.kx, self.ky)
+            rank = np.empty(self.n, dtype=np.int64)
+            rank[tables[1 - axis].order] = np.arange(self.n)
+            self._rank[axis] = rank[tables[axis].order]
+        return self._rank[axis]
+
+    def match(self, observed_xy, radius_px) -> np.ndarray:
+        """Nearest predicted point within ``radius_px`` of every observed point (see :func:`match_stars`)."""
+        obs = _check_points(observed_xy, "observed_xy")
+        r = _check_radius(radius_px)
+        if len(obs) == 0:
+            return np.empty(0, dtype=np.int64)
+        obs_t = np.ascontiguousarray(obs.T)
+        qi, e = self._intersection(obs_t, r)
+        d = obs_t[:, qi]
+        d -= self._xy_t[:, e]
+        d2 = d[0] ** 2 + d[1] ** 2  # the shared expression (x_q - x_p)² + (y_q - y_p)²
+        ok = d2 <= r * r
+        qi, e = qi[ok], e[ok]
+        if len(qi) < 2 or (qi[1:] != qi[:-1]).all():  # at most one candidate per point: nothing to choose
+            idx = np.full(len(obs), -1, dtype=np.int64)
+            idx[qi] = e
+            return idx
+        return _nearest_per_query(qi, e, d2[ok], len(obs))
+
+
+def _match_brute(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
+    out = np.full(len(obs), -1, dtype=np.int64)
+    block = max(1, _BRUTE_BLOCK // max(len(pred), 1))
+    r2 = r * r
+    for s in range(0, len(obs), block):  # blocks only bound memory; each block is all-pairs vectorised
+        o = obs[s : s + block]
+        d2 = (o[:, 0, None] - pred[None, :, 0]) ** 2 + (o[:, 1, None] - pred[None, :, 1]) ** 2
+        d2[d2 > r2] = np.inf
+        j = np.argmin(d2, axis=1)  # first minimum: ties to the lowest index
+        hit = np.isfinite(d2[np.arange(len(o)), j])
+        out[s : s + block] = np.where(hit, j, -1)
+    return out
+
+
+def _match_kdtree(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
+    n = len(pred)
+    tree = cKDTree(pred)
+    bound = r * (1 + 1e-9) + 1e-12
+    k = 2 if n >= 2 else 1
+    d, j = tree.query(obs, k=k, distance_upper_bound=bound)
+    if k == 1:
+        d, j = d[:, None], j[:, None]
+    j0 = j[:, 0]
+    found = j0 < n
+    j0s = np.where(found, j0, 0)
+    d2 = (obs[:, 0] - pred[j0s, 0]) ** 2 + (obs[:, 1] - pred[j0s, 1]) ** 2
+    idx = np.where(found & (d2 <= r * r), j0, -1)
+    if k == 2:
+        # The tree's own arithmetic may order near-ties differently: settle them with the shared rule.
+        amb = found & (j[:, 1] < n) & (d[:, 1] <= d[:, 0] * (1 + 1e-9) + 1e-12)
+        if amb.any():
+            idx[amb] = _match_brute(pred, obs[amb], r)
+    return idx.astype(np.int64)
+
+
+def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut") -> np.ndarray:
+    """Match observed spots to predicted spots (star neighbourhood approach).
+
+    Parameters
+    ----------
+    predicted_xy : array_like, shape (W, 2)
+        Predicted centroids (column, row), px. May be empty.
+    observed_xy : array_like, shape (Q, 2)
+        Observed centroids in scan order (any order), px. May be empty.
+    radius_px : float
+        Star-neighbourhood radius r >= 0, px (see :func:`prediction_radius_px` for the rule).
+    method : {"dkvlut", "brute", "kdtree"}
+        Paper 000's double k-vector lookup table, the all-pairs "existing method", or scipy's cKDTree.
+        All three return the same answer.
+
+    Returns
+    -------
+    idx : ndarray of int, shape (Q,)
+        Index into ``predicted_xy`` of the nearest predicted point with distance <= r (ties to the lowest
+        index), or -1. Several observed points may take the same predicted point.
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, NaN/inf coordinates, negative radius, unknown method.
+    """
+    if method not in MATCH_METHODS:
+        raise ValueError(f"method must be one of {MATCH_METHODS}, got {method!r}")
+    pred = _check_points(predicted_xy, "predicted_xy")
+    obs = _check_points(observed_xy, "observed_xy")
+    r = _check_radius(radius_px)
+    if len(pred) == 0 or len(obs) == 0:
+        return np.full(len(obs), -1, dtype=np.int64)
+    if method == "dkvlut":
+        return DKVLUT(pred).match(obs, r)
+    if method == "brute":
+        return _match_brute(pred, obs, r)
+    return _match_kdtree(pred, obs, r)
+
+
+# ------------------------------------------------------------------------------------------- prediction
+@dataclass(frozen=True)
+class PredictedStars:
+    """Predicted spots of one multi-exposure frame, in instant order (paper 000 Fig. 1b).
+
+    Attributes
+    ----------
+    xy : ndarray, shape (W, 2)
+        Predicted centroids (column, row), px.
+    star_index : ndarray of int, shape (W,)
+        Catalog row of each spot.
+    instant : ndarray of int, shape (W,)
+        Exposure instant (0..N-1) of each spot; non-decreasing.
+    on_detector : ndarray of bool, shape (W,)
+        Spot lies on the detector (the rest lie within the margin outside it).
+    times_s : ndarray, shape (N,)
+        Exposure instants, s.
+    q_body_to_icrs : ndarray, shape (N, 4)
+        Predicted body attitude at each instant.
+    """
+
+    xy: np.ndarray
+    star_index: np.ndarray
+    instant: np.ndarray
+    on_detector: np.ndarray
+    times_s: np.ndarray
+    q_body_to_icrs: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+
+def _check_vec3(a, name: str) -> np.ndarray:
+    return as_float_array(a, name, last_dim=3, ndim=1)
+
+
+def predict_star_positions(
+    camera: Camera,
+    catalog: StarCatalog,
+    q_body_to_icrs,
+    times_s,
+    t_ref_s: float = 0.0,
+    omega_body=None,
+    alpha_body=None,
+    margin_px: float = 0.0,
+) -> PredictedStars:
+    """Predicted pixel position of every catalog star in the field of view at each exposure instant.
+
+    The attitude is propagated from ``t_ref_s`` to each instant by second-order integration
+    (:func:`~startracker.rotations.quat_integrate`: rotation vector ω·dt + α·dt²/2 in the body frame), as
+    paper 000 ref. [26] does with attitude, rate and acceleration.
+
+    Parameters
+    ----------
+    camera : Camera
+        Its ``q_cam_to_body`` mounting is applied.
+    catalog : StarCatalog
+    q_body_to_icrs : array_like, shape (4,)
+        Body attitude at ``t_ref_s``.
+    times_s : array_like, shape (N,)
+        Exposure instants, s.
+    t_ref_s : float
+        Time of ``q_body_to_icrs``, s.
+    omega_body : array_like, shape (3,), optional
+        Body rate at ``t_ref_s``, rad/s (zero if None).
+    alpha_body : array_like, shape (3,), optional
+        Body angular acceleration, rad/s² (zero if None).
+    margin_px : float
+        Also keep spots up to this far outside the detector (a spot predicted just off the edge may be
+        observed just inside it). >= 0.
+
+    Returns
+    -------
+    PredictedStars
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError("camera must be a startracker.optics.Camera")
+    if not isinstance(catalog, StarCatalog):
+        raise TypeError("catalog must be a startracker.catalog.StarCatalog")
+    q0 = quat_normalize(as_float_array(q_body_to_icrs, "q_body_to_icrs", last_dim=4, ndim=1))
+    t = np.atleast_1d(as_float_array(times_s, "times_s"))
+    if t.ndim != 1 or len(t) == 0:
+        raise ValueError(f"times_s must be a non-empty 1-D array, got shape {t.shape}")
+    t_ref = float(as_float_array(t_ref_s, "t_ref_s"))
+    w = np.zeros(3) if omega_body is None else _check_vec3(omega_body, "omega_body")
+    a = np.zeros(3) if alpha_body is None else _check_vec3(alpha_body, "alpha_body")
+    margin = float(as_float_array(margin_px, "margin_px"))
+    if margin < 0:
+        raise ValueError(f"margin_px must be >= 0, got {margin_px}")
+
+    q_body = quat_integrate(q0, w, t - t_ref, a).reshape(len(t), 4)
+    q_cam = quat_multiply(q_body, np.asarray(camera.q_cam_to_body))  # cam -> body -> icrs
+    r_cam_to_icrs = quat_to_matrix(q_cam)  # (N, 3, 3)
+
+    # Candidate stars: one cone around the mean boresight wide enough for the whole frame.
+    bore = r_cam_to_icrs[:, :, 2]
+    mid = bore.mean(axis=0)
+    mid /= np.linalg.norm(mid)
+    spread = float(np.max(np.arccos(np.clip(bore @ mid, -1.0, 1.0))))
+    fpx = camera.focal_length_px
+    cone = min(np.pi, camera.half_diagonal_fov_rad + spread + margin / fpx + 0.02)
+    cand = catalog.cone_search(mid, cone)
+    n_t = len(t)
+    if len(cand) == 0:
+        e = np.empty(0, dtype=np.int64)
+        return PredictedStars(np.empty((0, 2)), e, e.copy(), np.empty(0, dtype=bool), t, q_body)
+    v_icrs = catalog.vectors[cand]  # (S, 3)
+    v_cam = np.einsum("nji,sj->nsi", r_cam_to_icrs, v_icrs)  # R^T v per instant, (N, S, 3)
+    xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True)
+    wdt, hgt = camera.resolution
+    x, y = xy[:, 0], xy[:, 1]
+    keep = in_front & (x >= -0.5 - margin) & (x <= wdt - 0.5 + margin) & (y >= -0.5 - margin) & (y <= hgt - 0.5 + margin)
+    on_det = (x >= -0.5) & (x <= wdt - 0.5) & (y >= -0.5) & (y <= hgt - 0.5)
+    star = np.tile(cand, n_t)
+    inst = np.repeat(np.arange(n_t), len(cand))
+    return PredictedStars(xy[keep], star[keep], inst[keep], on_det[keep], t, q_body)
+
+
+def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, sigma_omega_rad_s: float, sigma_alpha_rad_s2: float, dt_s) -> np.ndarray:
+    """1σ per-axis prediction error of a spot, px, after propagating an attitude for ``dt_s``.
+
+    ``σ_θ²(dt) = σ_0² + σ_ω² dt² + (σ_α dt²/2)²`` per axis (attitude, rate and acceleration uncertainty),
+    with σ_0² the larger cross-boresight variance of ``cov_theta_body_rad2`` in the camera frame for the
+    pitch/yaw part and its boresight variance for roll. Cross-boresight errors move every spot by
+    ``f_px σ``; roll moves a spot by ``ρ σ`` with ρ up to the corner distance. Returns
+    ``sqrt(f_px² σ_cross² + ρ_max² σ_roll²)``.
+
+    Parameters
+    ----------
+    camera : Camera
+    cov_theta_body_rad2 : array_like, shape (3, 3)
+        Covariance of the attitude error rotation vector in the body frame, rad².
+    sigma_omega_rad_s : float
+        1σ per-axis rate uncertainty, rad/s.
+    sigma_alpha_rad_s2 : float
+        1σ per-axis unmodelled angular acceleration, rad/s².
+    dt_s : float or array_like
+        Propagation time(s), s.
+
+    Returns
+    -------
+    ndarray (shape of ``dt_s``), px
+    """
+    p = as_float_array(cov_theta_body_rad2, "cov_theta_body_rad2")
+    if p.shape != (3, 3):
+        raise ValueError(f"cov_theta_body_rad2 must have shape (3, 3), got {p.shape}")
+    rcb = camera.r_cam_to_body
+    pc = rcb.T @ p @ rcb
+    dt = np.abs(np.asarray(dt_s, dtype=np.float64))
+    grow = sigma_omega_rad_s**2 * dt**2 + (0.5 * sigma_alpha_rad_s2 * dt**2) ** 2
+    cross = max(pc[0, 0], pc[1, 1]) + grow
+    roll = pc[2, 2] + grow
+    w, h = camera.resolution
+    rho = float(np.hypot(w, h)) / 2.0
+    return np.sqrt(camera.focal_length_px**2 * cross + rho**2 * roll)
+
+
+def prediction_radius_px(
+    sigma_centroid_px: float,
+    sigma_prediction_px: float = 0.0,
+    k_sigma: float = RADIUS_K_SIGMA,
+    r_min_px: float = 0.0,
+    r_max_px: float = np.inf,
+) -> float:
+    """Star-neighbourhood radius from the prediction's uncertainty (module docstring: the rule).
+
+    ``r = clip(k_sigma * sqrt(sigma_centroid_px² + sigma_prediction_px²), r_min_px, r_max_px)``; with the
+    default k = 6 a true spot falls outside r with probability exp(-18) ≈ 1.5e-8.
+    """
+    for name, v in (("sigma_centroid_px", sigma_centroid_px), ("sigma_prediction_px", sigma_prediction_px), ("k_sigma", k_sigma)):
+        if not np.isfinite(v) or v < 0:
+            raise ValueError(f"{name} must be finite and >= 0, got {v}")
+    r = k_sigma * float(np.hypot(sigma_centroid_px, sigma_prediction_px))
+    return float(np.clip(r, r_min_px, r_max_px))
+
+
+# ------------------------------------------------------------------------ grouping into N attitudes
+@dataclass(frozen=True)
+class InstantAttitudes:
+    """One Wahba solution per exposure instant of a frame.
+
+    Attributes
+    ----------
+    times_s : ndarray, shape (N,)
+    q_body_to_icrs : ndarray, shape (N, 4)
+        Identity where ``ok`` is False.
+    covariance_rad2 : ndarray, shape (N, 3, 3)
+        Attitude error covariance in the body frame (QUEST model), rad².
+    residual_rms_arcsec : ndarray, shape (N,)
+    n_stars : ndarray of int, shape (N,)
+        Stars used per instant (after duplicate and outlier removal).
+    ok : ndarray of bool, shape (N,)
+        Solved with at least ``min_stars`` stars.
+    assignment : ndarray of int, shape (K,)
+        Per observed detection, the index into the prediction it was finally used for, or -1.
+    n_outliers : int
+        Matches removed by the residual test.
+    """
+
+    times_s: np.ndarray
+    q_body_to_icrs: np.ndarray
+    covariance_rad2: np.ndarray
+    residual_rms_arcsec: np.ndarray
+    n_stars: np.ndarray
+    ok: np.ndarray
+    assignment: np.ndarray
+    n_outliers: int
+
+    @property
+    def skipped(self) -> np.ndarray:
+        """Instants without a solution (too few stars)."""
+        return np.flatnonzero(~self.ok)
+
+
+def _unique_assignment(obs: np.ndarray, pred_xy: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Several observed points on one predicted point: keep the nearest (ties: lowest observed index)."""
+    out = np.full(len(idx), -1, dtype=np.int64)
+    q = np.flatnonzero(idx >= 0)
+    if len(q) == 0:
+        return out
+    p = idx[q]
+    d2 = np.sum((obs[q] - pred_xy[p]) ** 2, axis=1)
+    o = np.lexsort((q, d2, p))
+    ps = p[o]
+    first = np.r_[True, ps[1:] != ps[:-1]]
+    out[q[o][first]] = ps[first]
+    return out
+
+
+def attitudes_per_instant(
+    observed_xy,
+    match_idx,
+    prediction: PredictedStars,
+    camera: Camera,
+    catalog: StarCatalog,
+    sigma_px: float,
+    min_stars: int = 3,
+    outlier_k_sigma: float = 5.0,
+) -> InstantAttitudes:
+    """Group matched detections by exposure instant and solve one Wahba problem per instant.
+
+    All instants are solved in one :func:`~startracker.attitude.solve_wahba_batch` call. One observed spot
+    per predicted spot (the nearest); then stars whose residual exceeds ``outlier_k_sigma`` times the
+    angular noise are dropped (the worst per instant first, until none remain) and the instant re-solved.
+
+    Parameters
+    ----------
+    observed_xy : array_like, shape (K, 2)
+        Detections, px.
+    match_idx : array_like of int, shape (K,)
+        :func:`match_stars` output against ``prediction.xy``.
+    prediction : PredictedStars
+    camera : Camera
+    catalog : StarCatalog
+    sigma_px : float
+        1σ per-axis centroid noise, px; the angular noise is ``sigma_px / f_px``.
+    min_stars : int
+        Instants with fewer stars are skipped (>= 2).
+    outlier_k_sigma : float
+        Residual test threshold in units of the angular noise.
+
+    Returns
+    -------
+    InstantAttitudes
+    """
+    obs = _check_points(observed_xy, "observed_xy")
+    idx = np.asarray(match_idx, dtype=np.int64)
+    if idx.shape != (len(obs),):
+        raise ValueError(f"match_idx must have shape ({len(obs)},), got {idx.shape}")
+    if np.any(idx >= len(prediction)) or np.any(idx < -1):
+        raise ValueError("match_idx must index prediction.xy or be -1")
+    if not np.isfinite(sigma_px) or sigma_px <= 0:
+        raise ValueError(f"sigma_px must be positive, got {sigma_px}")
+    if int(min_stars) < 2:
+        raise ValueError(f"min_stars must be >= 2, got {min_stars}")
+    n_t = len(prediction.times_s)
+    assign = _unique_assignment(obs, prediction.xy, idx)
+    q_obs = np.flatnonzero(assign >= 0)
+    p = assign[q_obs]
+    inst = prediction.instant[p]
+    # Pad per instant: (N, Kmax, 3).
+    order = np.lexsort((q_obs, inst))
+    q_obs, p, inst = q_obs[order], p[order], inst[order]
+    counts = np.bincount(inst, minlength=n_t)
+    kmax = max(int(counts.max()) if len(counts) else 0, 2)
+    slot = np.arange(len(inst)) - np.repeat(np.cumsum(counts) - counts, counts)
+    v_body = np.zeros((n_t, kmax, 3))
+    v_ref = np.zeros((n_t, kmax, 3))
+    mask = np.zeros((n_t, kmax), dtype=bool)
+    v_body[..., 2] = 1.0
+    v_ref[..., 2] = 1.0
+    if len(q_obs):
+        v_body[inst, slot] = camera.unproject(obs[q_obs]) @ camera.r_cam_to_body.T
+        v_ref[inst, slot] = catalog.vectors[prediction.star_index[p]]
+        mask[inst, slot] = True
+    sigma_rad = sigma_px / camera.focal_length_px
+    thr = outlier_k_sigma * sigma_rad
+    n_out = 0
+    for _ in range(kmax):  # a handful of passes: one outlier per instant per pass
+        q, cov, rms, ok = solve_wahba_batch(v_body, v_ref, sigma_rad, mask=mask)
+        rb = np.einsum("bij,bkj->bki", quat_to_matrix(q), v_body)
+        ang = np.arctan2(np.linalg.norm(np.cross(rb, v_ref), axis=-1), np.sum(rb * v_ref, axis=-1))
+        ang = np.where(mask, ang, -1.0)
+        worst = np.argmax(ang, axis=1)
+        bad = (ang[np.arange(n_t), worst] > thr) & (mask.sum(axis=1) > 2)
+        if not bad.any():
+            break
+        mask[np.flatnonzero(bad), worst[bad]] = False
+        n_out += int(bad.sum())
+    n_used = mask.sum(axis=1)
+    ok = ok & (n_used >= int(min_stars))
+    # Detections dropped as outliers lose their assignment.
+    if len(q_obs):
+        kept = mask[inst, slot]
+        assign[q_obs[~kept]] = -1
+    cov = np.where(ok[:, None, None], cov, np.inf)
+    rms = np.where(ok, rms, np.inf)
+    return InstantAttitudes(prediction.times_s.copy(), q, cov, rms, n_used, ok, assign, n_out)
+
+
+# --------------------------------------------------------------------------- synthetic test frames
+@dataclass(frozen=True)
+class SyntheticFrame:
+    """Detections of one (multi-)exposure frame built straight from the catalog (no pixels).
+
+    Attributes
+    ----------
+    xy : ndarray, shape (K, 2)
+        Detections in scan order (row, then column), px.
+    intensity : ndarray, shape (K,)
+        Relative spot brightness (∝ 10^(-0.4 V) / N for stars).
+    star_index : ndarray of int, shape (K,)
+        Catalog row, -1 for false objects.
+    instant : ndarray of int, shape (K,)
+        Exposure instant, -1 for false objects.
+    exposure_times_s : ndarray, shape (N,)
+    q_body_to_icrs : ndarray, shape (N, 4)
+        True body attitude at each instant.
+    xy_true : ndarray, shape (K, 2)
+        Noise-free positions (false objects: their drawn positions).
+    """
+
+    xy: np.ndarray
+    intensity: np.ndarray
+    star_index: np.ndarray
+    instant: np.ndarray
+    exposure_times_s: np.ndarray
+    q_body_to_icrs: np.ndarray
+    xy_true: np.ndarray
+
+
+def synthetic_frame(
+    camera: Camera,
+    catalog: StarCatalog,
+    q_body_to_icrs,
+    omega_body,
+    exposure_times_s,
+    rng: np.random.Generator,
+    t_ref_s: float = 0.0,
+    alpha_body=None,
+    sigma_px: float = 0.0,
+    n_false: int = 0,
+    p_detect: float = 1.0,
+) -> SyntheticFrame:
+    """Truth detections of a multi-exposure frame during a slew, for tests and benchmarks.
+
+    Stars of ``catalog`` are projected at each exposure instant of the attitude trajectory
+    ``q(t) = quat_integrate(q_body_to_icrs, omega_body, t - t_ref_s, alpha_body)``; each spot on the detector
+    is kept with probability ``p_detect``, gets Gaussian noise of ``sigma_px`` per axis, and ``n_false``
+    false objects are drawn uniformly over the detector. Detections come out in scan order.
+
+    Parameters
+    ----------
+    camera, catalog
+    q_body_to_icrs : array_like, shape (4,)
+        True attitude at ``t_ref_s``.
+    omega_body : array_like, shape (3,)
+        True body rate, rad/s.
+    exposure_times_s : array_like, shape (N,)
+    rng : numpy.random.Generator
+    t_ref_s : float
+    alpha_body : array_like, shape (3,), optional
+        True angular acceleration, rad/s².
+    sigma_px : float
+        Centroid noise, px (1σ per axis).
+    n_false : int
+        False objects.
+    p_detect : float
+        Detection probability of a star spot.
+
+    Returns
+    -------
+    SyntheticFrame
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError("rng must be a numpy.random.Generator")
+    if sigma_px < 0 or n_false < 0 or not (0.0 <= p_detect <= 1.0):
+        raise ValueError("sigma_px and n_false must be >= 0 and p_detect in [0, 1]")
+    pred = predict_star_positions(camera, catalog, q_body_to_icrs, exposure_times_s, t_ref_s, omega_body, alpha_body)
+    n_t = len(pred.times_s)
+    keep = rng.random(len(pred)) < p_detect
+    xy_true = pred.xy[keep]
+    star = pred.star_index[keep]
+    inst = pred.instant[keep]
+    xy = xy_true + rng.normal(0.0, sigma_px, xy_true.shape) if sigma_px > 0 else xy_true.copy()
+    inten = 1e3 * 10 ** (-0.4 * (catalog.vmag[star] - 6.0)) / n_t
+    w, h = camera.resolution
+    fxy = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (int(n_false), 2))
+    fint = 1e3 * 10 ** (-0.4 * rng.uniform(3.0, 7.0, int(n_false))) / n_t
+    xy = np.concatenate([xy, fxy])
+    xy_true = np.concatenate([xy_true, fxy])
+    inten = np.concatenate([inten, fint])
+    star = np.concatenate([star, np.full(int(n_false), -1)])
+    inst = np.concatenate([inst, np.full(int(n_false), -1)])
+    o = np.lexsort((xy[:, 0], np.floor(xy[:, 1])))
+    return SyntheticFrame(xy[o], inten[o], star[o], inst[o], pred.times_s, pred.q_body_to_icrs, xy_true[o])

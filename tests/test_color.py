@@ -1,0 +1,141 @@
+"""Star colour (B−V -> T -> channel electrons) and the 3CMOS channel optics (paper 004 eqs. 1-3, 21-23)."""
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+from scipy.optimize import brentq
+
+from startracker.color import (
+    BANDS_NM,
+    ChannelResponse,
+    ColorCamera,
+    bv_to_teff,
+    planck_photon_radiance,
+)
+from startracker.optics import Camera, camera_preset
+
+# --------------------------------------------------------------------------------------- colour
+
+
+def test_ballesteros_sun():
+    """Ballesteros (2012) gives the Sun's 5778 K for its B−V = 0.65, and T falls with B−V."""
+    assert bv_to_teff(0.65) == pytest.approx(5778, rel=2e-3)
+    t = bv_to_teff(np.linspace(-0.4, 5.4, 100))
+    assert np.all(np.diff(t) < 0)
+    assert bv_to_teff(0.0) == pytest.approx(4600 * (1 / 1.7 + 1 / 0.62))
+
+
+def test_planck_photon_peak_follows_wien():
+    """Photon spectrum per wavelength peaks at λT = hc / (x k), x = 4 (1 - e^-x) (x ≈ 3.9207)."""
+    x = brentq(lambda x: x - 4 * (1 - np.exp(-x)), 1, 10)
+    lam = np.linspace(100, 3000, 290001)
+    for t in (3000.0, 5778.0, 12000.0):
+        spec = planck_photon_radiance(lam, t)
+        assert lam[np.argmax(spec)] == pytest.approx(6.62607015e-34 * 299792458 / 1.380649e-23 / x / t * 1e9, abs=0.02)
+
+
+def test_ratio_ordering_hot_and_cool_stars():
+    r = ChannelResponse()
+    e = r.electrons([-0.3, 0.0, 0.65, 1.6])  # B-type, A0 (Vega), Sun, M giant
+    red, green, blue = e.T
+    assert blue[0] > green[0] > red[0]  # hot star: blue-rich
+    assert red[3] > green[3] > blue[3]  # cool star: red-rich
+    assert red[2] > blue[2]  # the Sun is already redder than blue in these bands
+    ratio = r.color_ratio(np.linspace(-0.4, 5.4, 60))
+    assert np.all(np.diff(ratio) > 0)
+    np.testing.assert_allclose(r.fractions([0.3, 1.0]).sum(axis=1), 1.0)
+
+
+def test_channel_integral_matches_quadrature_for_flat_qe():
+    """With QE = 1, each channel is the band integral of the Planck photon spectrum (scipy quad)."""
+    r = ChannelResponse(qe_wavelength_nm=(300, 800), qe=(1.0, 1.0), step_nm=0.5)
+    for bv in (-0.2, 0.65, 1.5):
+        t = float(bv_to_teff(bv))
+        ref = np.array([quad(lambda lam: planck_photon_radiance([lam], t)[0], *BANDS_NM[c])[0]
+                        for c in ("red", "green", "blue")])
+        e = r.electrons([bv])[0]
+        np.testing.assert_allclose(e / e[1], ref / ref[1], rtol=2e-5)
+
+
+def test_equal_v_normalisation():
+    """A B−V = 0 star gives a channel sum of 1; equal-V stars collect comparable total signal."""
+    r = ChannelResponse()
+    assert r.electrons([0.0]).sum() == pytest.approx(1.0, abs=1e-12)
+    tot = r.electrons([-0.3, 0.65, 1.5]).sum(axis=1)
+    assert np.all((tot > 0.8) & (tot < 1.5))
+    # the V band sits in the green channel: green electrons of equal-V stars vary far less than red or blue
+    e = r.electrons(np.linspace(-0.3, 1.8, 30))
+    spread = e.max(axis=0) / e.min(axis=0)
+    assert spread[1] < spread[0] and spread[1] < spread[2]
+
+
+def test_colour_bad_input():
+    with pytest.raises(ValueError, match="bv"):
+        bv_to_teff([0.1, np.nan])
+    with pytest.raises(ValueError, match="bv"):
+        bv_to_teff(-0.8)
+    with pytest.raises(ValueError, match="teff_k"):
+        planck_photon_radiance([500.0], -10.0)
+    with pytest.raises(ValueError, match="bands_nm"):
+        ChannelResponse(bands_nm={"red": (580, 680), "green": (490, 590)})
+    with pytest.raises(ValueError, match="bands_nm"):
+        ChannelResponse(bands_nm={"red": (680, 580), "green": (490, 590), "blue": (400, 500)})
+    with pytest.raises(ValueError, match="qe"):
+        ChannelResponse(qe_wavelength_nm=(400, 500), qe=(0.5, 1.5))
+
+
+# ------------------------------------------------------------------------------------- channels
+
+
+def test_paper004_preset_matches_table1_and_green_camera():
+    cc = ColorCamera.paper004()
+    assert [c.focal_length_mm for c in cc.cameras] == [25.0601, 25.0, 24.95]
+    assert [c.principal_point for c in cc.cameras] == [(1033.9, 774.3), (1032.0, 772.0), (1030.6, 770.4)]
+    assert [c.distortion_k1_per_mm2 for c in cc.cameras] == [5.7e-5, 4.9e-5, 3.6e-5]
+    assert np.degrees(cc.rotation_rad) == pytest.approx([0.07, 0.0, -0.05])
+    fov = cc.green.fov_deg
+    assert fov[0] == pytest.approx(16.1, abs=0.2) and fov[1] == pytest.approx(12.1, abs=0.2)
+    v = np.random.default_rng(0).normal([0, 0, 8], 1, (100, 3))
+    np.testing.assert_allclose(cc.project_channel("green", v)[0], camera_preset("paper004").project(v)[0])
+
+
+def test_channel_projection_follows_eq22():
+    """Red channel written out from eq. 22: rotate (F_r v/v_z + δ_r) by [[c, s], [-s, c]], add x0_r."""
+    cc = ColorCamera.paper004()
+    rng = np.random.default_rng(1)
+    v = np.column_stack([rng.uniform(-0.12, 0.12, 50), rng.uniform(-0.09, 0.09, 50), np.ones(50)])
+    for i, name in ((0, "red"), (2, "blue")):
+        cam = cc.cameras[i]
+        f_mm, m, p_mm = cam.focal_length_mm, cam.distortion_k1_per_mm2, cam.pixel_size_um * 1e-3
+        xp, yp = f_mm * v[:, 0] / v[:, 2], f_mm * v[:, 1] / v[:, 2]
+        r2 = xp**2 + yp**2
+        ux, uy = (xp + xp * m * r2) / p_mm, (yp + yp * m * r2) / p_mm
+        th = cc.rotation_rad[i]
+        want = np.column_stack([np.cos(th) * ux + np.sin(th) * uy + cam.principal_point[0],
+                                -np.sin(th) * ux + np.cos(th) * uy + cam.principal_point[1]])
+        xy, inside = cc.project_channel(name, v)
+        np.testing.assert_allclose(xy, want, atol=1e-9)
+        assert inside.all()
+        np.testing.assert_allclose(cc.unproject_channel(name, xy), v / np.linalg.norm(v, axis=1, keepdims=True),
+                                   atol=1e-12)
+    xy3, in3 = cc.project(v)
+    assert xy3.shape == (3, 50, 2) and in3.shape == (3, 50)
+
+
+def test_color_camera_bad_input():
+    kw = dict(resolution=(2064, 1544), pixel_size_um=3.45, focal_length_mm=25.0)
+    g = Camera(**kw)
+    with pytest.raises(ValueError, match="resolution"):
+        ColorCamera(red=Camera(**{**kw, "resolution": (2048, 1544)}), green=g, blue=g)
+    with pytest.raises(ValueError, match="pixel_size_um"):
+        ColorCamera(red=Camera(**{**kw, "pixel_size_um": 3.5}), green=g, blue=g)
+    with pytest.raises(ValueError, match="q_cam_to_body"):
+        ColorCamera(red=Camera(**kw, q_cam_to_body=(0.0, 1.0, 0.0, 0.0)), green=g, blue=g)
+    with pytest.raises(ValueError, match="rotation_rad"):
+        ColorCamera(red=g, green=g, blue=g, rotation_rad=(0.0, 0.01, 0.0))
+    with pytest.raises(TypeError, match="blue"):
+        ColorCamera(red=g, green=g, blue="camera")
+    with pytest.raises(ValueError, match="channel"):
+        ColorCamera(red=g, green=g, blue=g).project_channel("yellow", [0, 0, 1])
+    with pytest.raises(ValueError, match="translation"):
+        ColorCamera.paper004(translation="table3")

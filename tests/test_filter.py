@@ -1,0 +1,275 @@
+"""MEKF: convergence, NEES consistency, bias estimation, coasting covariance, lean path = filterpy path."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from startracker.filter import AttitudeEKF
+from startracker.imu import Gyro, GyroSpec
+from startracker.rotations import (
+    quat_from_rotvec,
+    quat_multiply,
+    quat_conjugate,
+    quat_random,
+    quat_to_matrix,
+    quat_to_rotvec,
+)
+
+ARCSEC = math.pi / 180.0 / 3600.0
+DEG = math.pi / 180.0
+
+
+def star_tracker_cov(rng=None):
+    """Body-frame covariance of a tracker with 5" cross-boresight and 40" roll noise, tilted mounting."""
+    q_cam_to_body = quat_from_rotvec([0.3, -0.2, 0.1])
+    c = quat_to_matrix(q_cam_to_body)
+    return c @ np.diag([(5 * ARCSEC) ** 2, (5 * ARCSEC) ** 2, (40 * ARCSEC) ** 2]) @ c.T
+
+
+def attitude_error(q_est, q_true):
+    """Body-frame rotation vector δθ with q_true = q_est ⊗ exp(δθ)."""
+    return quat_to_rotvec(quat_multiply(quat_conjugate(q_est), q_true))
+
+
+class Truth:
+    """Piecewise-constant true rate per frame (exact attitude at any instant) and a gyro."""
+
+    def __init__(self, rng, gyro_spec, frame_s=0.1, q0=None):
+        self.rng = rng
+        self.frame_s = frame_s
+        self.q = quat_random(rng) if q0 is None else np.asarray(q0, float)
+        self.t = 0.0
+        self.k = 0
+        self.gyro = Gyro(gyro_spec, rng)
+
+    def rate(self, t):
+        return np.array([0.1 * math.sin(0.3 * t), 0.05 * math.cos(0.2 * t), 20 * DEG * math.sin(0.05 * t + 1.0)])
+
+    def frame(self, n_samples, cov):
+        """Advance one frame: gyro sample over it, n attitude samples at random instants inside."""
+        w = self.rate(self.t)
+        y = self.gyro.measure(w, self.rng)
+        t_meas = np.sort(self.t + self.frame_s * self.rng.uniform(0.0, 1.0, n_samples))
+        q_true_at = quat_multiply(self.q, quat_from_rotvec(np.outer(t_meas - self.t, w)))
+        noise = self.rng.standard_normal((n_samples, 3)) @ np.linalg.cholesky(cov).T
+        q_meas = quat_multiply(q_true_at, quat_from_rotvec(noise))
+        self.q = quat_multiply(self.q, quat_from_rotvec(w * self.frame_s))
+        self.k += 1
+        self.t = self.k * self.frame_s
+        return y, self.t, q_meas, t_meas
+
+
+def test_converges_from_5_deg_initial_error():
+    rng = np.random.default_rng(0)
+    spec = GyroSpec(rate_hz=10.0, arw_rad_sqrt_s=1e-5, bias_sigma_rad_s=1 * math.pi / 180 / 3600)
+    truth = Truth(rng, spec)
+    q0 = quat_multiply(truth.q, quat_from_rotvec(5 * DEG * np.array([0.6, -0.48, 0.64])))
+    f = AttitudeEKF.from_gyro_spec(spec, q0, sigma_attitude_rad=5 * DEG)
+    assert np.degrees(np.linalg.norm(attitude_error(f.q_body_to_world, truth.q))) > 4.9
+    cov = star_tracker_cov()
+    errs = []
+    for _ in range(30):
+        y, t_end, qm, tm = truth.frame(3, cov)
+        for q, t in zip(qm, tm):
+            f.update(q, cov, t, omega_gyro=y)
+        f.propagate(y, t_end - f.t_s)
+        errs.append(attitude_error(f.q_body_to_world, truth.q))
+    errs = np.array(errs)
+    # after one frame the 5° error is gone; after 3 s the error is at the tracker-noise level
+    assert np.linalg.norm(errs[0]) < 100 * ARCSEC
+    assert np.all(np.abs(errs[-1]) < 4 * f.attitude_sigma_rad)
+    assert f.attitude_sigma_rad.max() < 30 * ARCSEC
+    assert f.ekf.x.shape == (6, 1) and np.all(f.ekf.x == 0.0)  # filterpy's column vector, reset to zero
+
+
+def test_nees_consistent_over_monte_carlo():
+    """Average NEES over 40 runs lies in the two-sided 95% χ² band at most instants (6 dof)."""
+    runs, frames = 40, 200
+    spec = GyroSpec(rate_hz=10.0, arw_rad_sqrt_s=2e-5, rrw_rad_s_sqrt_s=1e-7, bias_sigma_rad_s=5e-5)
+    cov = star_tracker_cov()
+    nees = np.zeros((runs, frames))
+    for r in range(runs):
+        rng = np.random.default_rng(100 + r)
+        truth = Truth(rng, spec)
+        p0_att = 1 * DEG
+        q0 = quat_multiply(truth.q, quat_from_rotvec(rng.normal(0.0, p0_att, 3)))  # q_true = q0 ⊗ exp(-e)
+        f = AttitudeEKF(
+            q0, arw_rad_sqrt_s=spec.arw_rad_sqrt_s, rrw_rad_s_sqrt_s=spec.rrw_rad_s_sqrt_s,
+            sigma_attitude_rad=p0_att, sigma_bias_rad_s=spec.bias_sigma_rad_s,
+        )
+        for k in range(frames):
+            y, t_end, qm, tm = truth.frame(3, cov)
+            f.process(y, t_end, qm, tm, np.broadcast_to(cov, (3, 3, 3)))
+            e = np.concatenate([attitude_error(f.q_body_to_world, truth.q), truth.gyro.bias_rad_s - f.bias_rad_s])
+            nees[r, k] = e @ np.linalg.solve(f.P, e)
+    mean_nees = nees.mean(axis=0)
+    lo, hi = chi2.ppf([0.025, 0.975], 6 * runs) / runs
+    inside = np.mean((mean_nees > lo) & (mean_nees < hi))
+    assert inside > 0.85, (inside, mean_nees.mean())
+    assert 5.6 < nees.mean() < 6.4
+
+
+def test_gyro_bias_estimated_during_slew():
+    rng = np.random.default_rng(3)
+    b_true = np.array([10.0, -5.0, 8.0]) * DEG / 3600.0  # °/h
+    spec = GyroSpec(rate_hz=10.0, arw_rad_sqrt_s=1e-6)
+    truth = Truth(rng, spec)
+    truth.gyro._b_const = b_true.copy()  # a known constant bias (tests the estimate, not the draw)
+    f = AttitudeEKF(truth.q, arw_rad_sqrt_s=1e-6, rrw_rad_s_sqrt_s=1e-9, sigma_attitude_rad=10 * ARCSEC,
+                    sigma_bias_rad_s=50 * DEG / 3600)
+    cov = star_tracker_cov()
+    for _ in range(600):  # 60 s
+        y, t_end, qm, tm = truth.frame(3, cov)
+        f.process(y, t_end, qm, tm, np.broadcast_to(cov, (3, 3, 3)))
+    err = f.bias_rad_s - b_true
+    assert np.all(np.abs(err) < 3 * f.bias_sigma_rad_s)
+    assert np.linalg.norm(err) < 0.02 * np.linalg.norm(b_true)
+    assert np.all(f.bias_sigma_rad_s < 0.1 * DEG / 3600)
+
+
+def test_covariance_grows_when_coasting_as_closed_form():
+    """At ω̂ = 0: P_θθ(t) = P_θθ(0) + P_bb(0) t² + σ_v² t + σ_u² t³/3, P_θb(t) = -P_bb(0) t - σ_u² t²/2."""
+    sv, su, pa, pb = 3e-5, 2e-7, (10 * ARCSEC) ** 2, (0.5 * DEG / 3600) ** 2
+    f = AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=sv, rrw_rad_s_sqrt_s=su,
+                    sigma_attitude_rad=math.sqrt(pa), sigma_bias_rad_s=math.sqrt(pb))
+    var = [f.P[0, 0]]
+    for _ in range(1000):  # 100 s, gyro reads exactly the bias estimate (0)
+        f.propagate(np.zeros(3), 0.1)
+        var.append(f.P[0, 0])
+    t = 100.0
+    np.testing.assert_allclose(np.diag(f.P)[:3], pa + pb * t**2 + sv**2 * t + su**2 * t**3 / 3, rtol=1e-9)
+    np.testing.assert_allclose(np.diag(f.P[:3, 3:]), -pb * t - su**2 * t**2 / 2, rtol=1e-9)
+    np.testing.assert_allclose(np.diag(f.P)[3:], pb + su**2 * t, rtol=1e-12)
+    assert np.all(np.diff(var) > 0)
+    # while rotating, the uncertainty still grows monotonically
+    g = AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=sv, rrw_rad_s_sqrt_s=su)
+    tr = [np.trace(g.P[:3, :3])]
+    for _ in range(200):
+        g.propagate([0.2, -0.3, 0.35], 0.05)
+        tr.append(np.trace(g.P[:3, :3]))
+    assert np.all(np.diff(tr) > 0)
+
+
+@pytest.mark.parametrize("gate", [None, 16.27])
+def test_lean_process_equals_filterpy_sequence(gate):
+    rng = np.random.default_rng(4)
+    cov0 = star_tracker_cov()
+    kw = dict(arw_rad_sqrt_s=2e-5, rrw_rad_s_sqrt_s=1e-7, sigma_attitude_rad=0.5 * DEG, gate_chi2=gate)
+    q0 = quat_random(rng)
+    a = AttitudeEKF(q0, **kw)  # filterpy path
+    b = AttitudeEKF(q0, **kw)  # lean path
+    q_true = q0
+    t = 0.0
+    for frame in range(40):
+        g = 4  # gyro samples per frame
+        t_g = t + 0.025 * np.arange(1, g + 1)
+        w_g = rng.normal(0.0, 0.3, (g, 3))  # gyro = truth (zero bias and noise)
+        m = int(rng.integers(0, 8))
+        t_m = np.sort(t + 0.1 * rng.uniform(0, 1, m))
+        if m >= 2:
+            t_m[1] = t_m[0]  # two exposures at one instant
+        if m >= 3:
+            t_m[2] = t_g[1]  # a sample exactly at a gyro boundary
+            t_m = np.sort(t_m)
+        # truth: the gyro rates are exact (piecewise constant); attitude at each exposure instant
+        edges = np.concatenate([[t], t_g])
+
+        def q_at(tq):
+            q = q_true
+            for j in range(g):
+                dt = min(tq, edges[j + 1]) - edges[j]
+                if dt <= 0:
+                    break
+                q = quat_multiply(q, quat_from_rotvec(w_g[j] * dt))
+            return q
+
+        q_m = np.array([quat_multiply(q_at(tq), quat_from_rotvec(rng.normal(0, 5 * ARCSEC, 3))) for tq in t_m])
+        q_m = q_m.reshape(m, 4)
+        if m and frame == 30:
+            q_m[0] = quat_multiply(q_m[0], quat_from_rotvec([0.05, 0, 0]))  # outlier for the gate
+        covs = np.array([cov0 * rng.uniform(0.5, 2.0) for _ in range(m)])
+        accepted = b.process(w_g, t_g, q_m, t_m, covs)
+        acc_a = []
+        gi = 0
+        tt = t
+        for i in range(m):
+            while t_g[gi] < t_m[i]:
+                a.propagate(w_g[gi], t_g[gi] - tt)
+                tt = t_g[gi]
+                gi += 1
+            acc_a.append(a.update(q_m[i], covs[i], t_m[i], omega_gyro=w_g[gi]))
+            tt = t_m[i]
+        while gi < g:
+            a.propagate(w_g[gi], t_g[gi] - tt)
+            tt = t_g[gi]
+            gi += 1
+        np.testing.assert_array_equal(accepted, acc_a)
+        t = t_g[-1]
+        q_true = q_at(t)
+        np.testing.assert_allclose(a.q_body_to_world, b.q_body_to_world, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(a.bias_rad_s, b.bias_rad_s, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(a.P, b.P, rtol=1e-9, atol=1e-14 * np.abs(a.P).max())
+        np.testing.assert_allclose(a.t_s, b.t_s, atol=1e-12)
+    assert a.n_updates == b.n_updates > 100
+    if gate is not None:
+        assert a.n_rejected == b.n_rejected >= 1
+
+
+def test_gate_rejects_outlier():
+    cov = star_tracker_cov()
+    rng = np.random.default_rng(5)
+    q_true = quat_random(rng)
+    f = AttitudeEKF(q_true, arw_rad_sqrt_s=1e-5, sigma_attitude_rad=20 * ARCSEC, gate_chi2=16.27)
+    bad = quat_multiply(q_true, quat_from_rotvec([0.0, 1 * DEG, 0.0]))
+    assert f.update(bad, cov) is False
+    assert np.linalg.norm(attitude_error(f.q_body_to_world, q_true)) < 1e-12
+    good = quat_multiply(q_true, quat_from_rotvec([5 * ARCSEC, 0, 0]))
+    assert f.update(good, cov) is True
+    assert f.n_rejected == 1 and f.n_updates == 1
+
+
+def test_measurement_sign_does_not_matter():
+    q = quat_random(np.random.default_rng(6))
+    meas = quat_multiply(q, quat_from_rotvec([1e-4, -2e-4, 3e-4]))
+    a = AttitudeEKF(q, arw_rad_sqrt_s=1e-5)
+    b = AttitudeEKF(q, arw_rad_sqrt_s=1e-5)
+    a.update(meas, star_tracker_cov())
+    b.update(-meas, star_tracker_cov())
+    np.testing.assert_allclose(a.q_body_to_world, b.q_body_to_world, atol=1e-15)
+
+
+def test_bad_input():
+    f = AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=1e-5)
+    cov = star_tracker_cov()
+    with pytest.raises(ValueError, match="arw_rad_sqrt_s"):
+        AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=0.0)
+    with pytest.raises(ValueError, match="q_body_to_world"):
+        AttitudeEKF([0, 0, 0, 0], arw_rad_sqrt_s=1e-5)
+    with pytest.raises(ValueError, match="sigma_attitude_rad"):
+        AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=1e-5, sigma_attitude_rad=-1.0)
+    with pytest.raises(ValueError, match="omega_gyro"):
+        f.propagate([np.nan, 0, 0], 0.1)
+    with pytest.raises(ValueError, match="dt"):
+        f.propagate([0, 0, 0], -0.1)
+    with pytest.raises(ValueError, match="covariance_rad2"):
+        f.update([1, 0, 0, 0], -cov)
+    with pytest.raises(ValueError, match="covariance_rad2"):
+        f.update([1, 0, 0, 0], np.ones((3, 3)))
+    with pytest.raises(ValueError, match="covariance_rad2"):
+        f.update([1, 0, 0, 0], np.eye(2))
+    with pytest.raises(ValueError, match="q_meas_body_to_world"):
+        f.update([0, 0, 0, 0], cov)
+    f.propagate([0, 0, 0], 1.0)
+    with pytest.raises(ValueError, match="t="):
+        f.update([1, 0, 0, 0], cov, t=0.5)
+    with pytest.raises(ValueError, match="t_gyro_s"):
+        f.process(np.zeros((2, 3)), [0.5, 1.1], np.zeros((0, 4)), [], np.zeros((0, 3, 3)))
+    with pytest.raises(ValueError, match="t_meas_s"):
+        f.process(np.zeros(3), 1.1, [[1, 0, 0, 0]], [1.2], cov[None])
+    with pytest.raises(ValueError, match="covariance_rad2"):
+        f.process(np.zeros(3), 1.1, [[1, 0, 0, 0]], [1.05], cov)
+    # nothing was changed by the rejected calls
+    assert f.t_s == 1.0 and f.n_updates == 0
+    np.testing.assert_array_equal(f.q_body_to_world, [1, 0, 0, 0])

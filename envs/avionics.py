@@ -110,7 +110,7 @@ class Avionics:
         self.config = config
         self.camera = camera_preset(config.camera)
         self.catalog = load_catalog(mag_limit=config.mag_limit)
-        self.sensor_model = SensorModel.for_camera(self.camera) if hasattr(SensorModel, "for_camera") else SensorModel()
+        self.sensor_model = SensorModel.preset("paper000")
         self.gyro_spec = gyro_preset(config.gyro_grade, rate_hz=config.gyro_rate_hz)
         self.tracker = StarTracker(
             self.camera,

@@ -36,6 +36,7 @@ and trims to the exact range.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -181,8 +182,11 @@ class PairTable:
     @classmethod
     def from_pairs(cls, heads, first, second, angle_rad) -> "PairTable":
         order = np.argsort(angle_rad, kind="stable")
-        a = np.asarray(angle_rad)[order]
-        return cls(tuple(heads), np.asarray(first)[order], np.asarray(second)[order], a, KVector(a) if len(a) else None)
+        a = np.asarray(angle_rad, dtype=np.float64)[order]
+        kv = KVector(a) if len(a) else None
+        if kv is not None:
+            a = kv.sorted_values  # the same values (already sorted): share the array
+        return cls(tuple(heads), np.asarray(first)[order], np.asarray(second)[order], a, kv)
 
     def query_many(self, lo_rad, hi_rad) -> tuple[np.ndarray, np.ndarray]:
         """All (query, pair row) with the pair's angle in ``[lo, hi]``; rows index ``first``/``second``."""
@@ -196,7 +200,7 @@ class PairTable:
 def _pairs_between(vec_a, idx_a, vec_b, idx_b, lo_rad, hi_rad, exclude_same: bool):
     """Directed pairs (a, b) with lo <= angle <= hi, chunked dense dot products."""
     cos_hi, cos_lo = np.cos(min(np.pi, hi_rad)), np.cos(max(0.0, lo_rad))
-    fa, fb, ang = [np.empty(0, np.int64)], [np.empty(0, np.int64)], [np.empty(0)]
+    fa, fb, ang = [np.empty(0, np.int32)], [np.empty(0, np.int32)], [np.empty(0)]
     for s in range(0, len(vec_a), _CHUNK):
         c = vec_a[s : s + _CHUNK] @ vec_b.T
         ok = (c >= cos_hi - 1e-12) & (c <= cos_lo + 1e-12)
@@ -205,10 +209,12 @@ def _pairs_between(vec_a, idx_a, vec_b, idx_b, lo_rad, hi_rad, exclude_same: boo
             keep = idx_a[s + i] != idx_b[j]
             i, j = i[keep], j[keep]
         va, vb = vec_a[s + i], vec_b[j]
-        a = np.arctan2(np.linalg.norm(np.cross(va, vb), axis=1), np.sum(va * vb, axis=1))
+        cr = np.stack([va[:, 1] * vb[:, 2] - va[:, 2] * vb[:, 1], va[:, 2] * vb[:, 0] - va[:, 0] * vb[:, 2],
+                       va[:, 0] * vb[:, 1] - va[:, 1] * vb[:, 0]], axis=1)
+        a = np.arctan2(np.linalg.norm(cr, axis=1), np.sum(va * vb, axis=1))
         keep = (a >= lo_rad) & (a <= hi_rad)
-        fa.append(idx_a[s + i[keep]])
-        fb.append(idx_b[j[keep]])
+        fa.append(idx_a[s + i[keep]].astype(np.int32))
+        fb.append(idx_b[j[keep]].astype(np.int32))
         ang.append(a[keep])
     return np.concatenate(fa), np.concatenate(fb), np.concatenate(ang)
 
@@ -240,7 +246,7 @@ class LocalCatalog:
     tables: dict
     margin_rad: float
 
-    @property
+    @cached_property
     def stars(self) -> np.ndarray:
         """Union of the star sets, sorted catalog rows."""
         return np.unique(np.concatenate(self.star_sets)) if self.star_sets else np.empty(0, np.int64)
@@ -249,7 +255,17 @@ class LocalCatalog:
     def n_stars(self) -> int:
         return len(self.stars)
 
-    @property
+    @cached_property
+    def nbytes(self) -> int:
+        """Memory of the star sets and argument sets (pairs, angles, k-vectors), bytes."""
+        total = sum(s.nbytes for s in self.star_sets)
+        for t in self.tables.values():
+            total += t.first.nbytes + t.second.nbytes + t.angle_rad.nbytes
+            if t.kvector is not None:
+                total += t.kvector.order.nbytes + t.kvector.k.nbytes
+        return int(total)
+
+    @cached_property
     def n_pairs(self) -> int:
         return int(sum(len(t) for t in self.tables.values()))
 

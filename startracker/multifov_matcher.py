@@ -14,14 +14,17 @@ of observed stars ``(i, j, m)`` each side's measured angle is searched in the ar
 two stars were seen in (within-FoV for one head, cross-FoV for two), ``[d − ε, d + ε]``; the candidate
 pairs of sides ``ij`` and ``im`` are joined on the catalog star of ``i``, the third side is checked against
 ``d_jm``, and mirror images are dropped by the sign of the triple product. Every catalog triangle left is a
-hypothesis: its attitude is solved (Wahba, :func:`startracker.attitude.solve_wahba_batch`) and verified by
+hypothesis: its attitude is solved (Wahba by SVD, batched over hypotheses) and verified by
 re-projection: every observed star is turned into ICRS by the hypothesis and counted as matched when a
-catalog star lies within its tolerance (noise plus the hypothesis' own attitude uncertainty); the best
-hypothesis is refitted on all its matches and re-verified with the tight tolerance.
+catalog star lies within its tolerance (noise plus the hypothesis' own attitude uncertainty); each
+hypothesis is refitted on all its matches and re-verified with the tight tolerance. The reported attitude
+is :func:`startracker.attitude.solve_wahba` on all matches of the accepted hypothesis.
 
 It is reported as a success only when
 
 * at least ``min_matched`` (3) stars match and the refitted residual is within the noise;
+* a triangle alone (3 matches) is accepted only when the expected number of chance catalog triangles
+  over the triangles tried is below ``false_alarm``; otherwise further detections must confirm it;
 * no other hypothesis with a different attitude explains as many stars (else "ambiguous");
 * with an INS prior, every head's solved LoS lies inside its predicted error radius (eq. 13);
 * most catalog stars the solution puts on the detectors (brighter than the catalog limit minus a margin)
@@ -44,66 +47,46 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import binom
 
-from startracker.attitude import RAD_TO_ARCSEC, solve_wahba_batch
+from startracker.attitude import RAD_TO_ARCSEC, solve_wahba
 from startracker.catalog import StarCatalog
+from startracker.identify.result import IdentificationResult
 from startracker.local_catalog import LocalCatalog, ObservedScope, predict_scopes
 from startracker.multifov import MultiFovSensor
-from startracker.rotations import as_float_array, quat_from_matrix, quat_multiply, quat_to_matrix
+from startracker.rotations import quat_multiply
 
 __all__ = ["MultiFovResult", "InertialAidedMatcher"]
 
 
 @dataclass(frozen=True)
-class MultiFovResult:
-    """Outcome of one multi-FoV identification: the fields of the lost-in-space
-    ``IdentificationResult`` (same names, same meaning) plus the multi-head ones.
+class MultiFovResult(IdentificationResult):
+    """Outcome of one multi-FoV identification: an :class:`IdentificationResult` (same fields, same
+    meaning, ``q_cam_to_icrs`` and ``covariance_rad2`` for the main head 0) plus the multi-head fields.
 
     Attributes
     ----------
-    success : bool
-        True only when a verified, unambiguous attitude was found.
     star_ids : ndarray of int, shape (n,)
-        HIP number of each detection (all heads, head order), −1 where unmatched.
-    q_cam_to_icrs : ndarray, shape (4,)
-        Main head (head 0) to ICRS, (w, x, y, z); identity when not successful.
-    n_matched : int
-    residual_arcsec : float
-        RMS angle between matched detections and their catalog stars after the final fit (inf on failure).
+        HIP number of each detection of all heads in head order, −1 where unmatched.
     latency_ms : float
-        Wall-clock time of the call (part-catalog build included, all-sky build excluded).
+        Wall-clock time of the call (INS prediction and part-catalog build included, all-sky build excluded).
     status : str
         "ok" or why not, plus notes ("ins error exceeds fov", "all-sky fallback: ...").
     method : str
         "multifov-local" or "multifov-allsky".
     n_required : int
-        Matches required for success (``min_matched``).
+        ``min_matched`` (a triangle needs confirming stars beyond it when chance triangles are likely).
     n_hypotheses : int
         Catalog triangles that reached verification.
-    covariance_rad2 : ndarray, shape (3, 3)
-        Attitude error covariance in the main head frame (QUEST), inf on failure.
     star_ids_per_head : tuple of ndarray of int
         ``star_ids`` split per head.
     q_body_to_icrs : ndarray, shape (4,)
-    n_catalog_stars : int
-        Stars in the catalog matched against (part catalog, or all-sky).
-    n_catalog_pairs : int
-        Pairs in its argument sets.
+        Body attitude (w, x, y, z); identity on failure.
+    n_catalog_stars, n_catalog_pairs : int
+        Size of the catalog matched against (part catalog, or all-sky): stars, and pairs in its argument sets.
     fallback_all_sky : bool
     scopes : tuple of ObservedScope or None
         The predicted scopes (None without an INS prior).
     """
 
-    success: bool
-    star_ids: np.ndarray
-    q_cam_to_icrs: np.ndarray
-    n_matched: int
-    residual_arcsec: float
-    latency_ms: float
-    status: str
-    method: str
-    n_required: int = 0
-    n_hypotheses: int = 0
-    covariance_rad2: np.ndarray | None = None
     star_ids_per_head: tuple = ()
     q_body_to_icrs: np.ndarray | None = None
     n_catalog_stars: int = 0
@@ -115,8 +98,19 @@ class MultiFovResult:
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
+def _cross(u, v):
+    """Cross product over the last axis (faster than numpy.cross for small arrays)."""
+    return np.stack(
+        [u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1],
+         u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2],
+         u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]],
+        axis=-1,
+    )
+
+
 def _angles(u, v):
-    return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.sum(u * v, axis=-1))
+    """Angle between unit vectors (..., 3), rad, accurate at all sizes."""
+    return np.arctan2(np.sqrt(np.sum(_cross(u, v) ** 2, axis=-1)), np.sum(u * v, axis=-1))
 
 
 def _triangle_order(n: int):
@@ -426,8 +420,8 @@ class InertialAidedMatcher:
             if len(A) == 0:
                 continue
             # Mirror images: the triple product keeps its sign under a rotation.
-            t_obs = float(np.dot(v_body[i], np.cross(v_body[j], v_body[m])))
-            t_cat = np.einsum("ni,ni->n", cat_vec[A], np.cross(cat_vec[B], cat_vec[C]))
+            t_obs = float(np.dot(v_body[i], _cross(v_body[j], v_body[m])))
+            t_cat = np.einsum("ni,ni->n", cat_vec[A], _cross(cat_vec[B], cat_vec[C]))
             tri_tol = 6 * self.pair_tol_rad * max(
                 float(_angles(v_body[i], v_body[j])), float(_angles(v_body[i], v_body[m])), 1e-6
             )
@@ -437,15 +431,13 @@ class InertialAidedMatcher:
                 continue
             hyp = np.stack([A, B, C], axis=1)
             obs = np.stack([v_body[i], v_body[j], v_body[m]])
-            q, cov, rms, ok = solve_wahba_batch(
-                np.broadcast_to(obs, (len(hyp), 3, 3)), cat_vec[hyp], self.sigma_rad
-            )
-            ok &= rms <= self.n_sigma_match * self.sigma_rad * RAD_TO_ARCSEC * 1.5 + 1e-9
-            if not ok.any():
+            r, cov3, rms = _fit(obs, cat_vec[hyp], self.sigma_rad)
+            ok = rms <= 1.5 * self.n_sigma_match * self.sigma_rad
+            if cov3 is None or not ok.any():
                 continue
             n_hyp += int(ok.sum())
-            r = quat_to_matrix(q[ok])
-            matched, _ = self._verify(r, cov[ok], v_body)
+            r = r[ok]
+            matched, _ = self._verify(r, np.broadcast_to(cov3, (len(r), 3, 3)), v_body)
             for h in range(len(r)):
                 cand = self._refine(v_body, matched[h])
                 if cand is None:
@@ -475,9 +467,12 @@ class InertialAidedMatcher:
         if expected and missing > max(1, self.max_missing_fraction * expected):
             return self._fail(n, f"rejected: {missing} of {expected} predicted bright stars not observed", n_hyp)
         ids = np.where(assign >= 0, self.catalog.hip[np.maximum(assign, 0)], -1)
-        q_b = quat_from_matrix(r_best)
-        return dict(success=True, star_ids=ids, q_body_to_icrs=q_b, covariance_rad2=cov_best, n_matched=n_best,
-                    residual_arcsec=rms_best, status="ok", n_hypotheses=n_hyp)
+        sel = np.flatnonzero(assign >= 0)
+        sol = solve_wahba(v_body[sel], self.catalog.vectors[assign[sel]], self.sigma_rad)
+        if not sol.success:
+            return self._fail(n, f"attitude solution failed: {sol.status}", n_hyp)
+        return dict(success=True, star_ids=ids, q_body_to_icrs=sol.q_meas_to_ref, covariance_rad2=sol.covariance_rad2,
+                    n_matched=n_best, residual_arcsec=sol.residual_rms_arcsec, status="ok", n_hypotheses=n_hyp)
 
     def _refine(self, v_body, assign):
         """Refit on every matched star, re-verify with the tight tolerance.
@@ -491,11 +486,10 @@ class InertialAidedMatcher:
             sel = sel[np.sort(first)]
             if len(sel) < 3:
                 return None
-            q, cov, rms, ok = solve_wahba_batch(v_body[sel][None], self.catalog.vectors[assign[sel]][None], self.sigma_rad)
-            if not ok[0]:
+            r, cov, _ = _fit(v_body[sel], self.catalog.vectors[assign[sel]][None], self.sigma_rad)
+            if cov is None:
                 return None
-            r = quat_to_matrix(q)
-            new, _ = self._verify(r, cov, v_body)
+            new, _ = self._verify(r, cov[None], v_body)
             new = new[0]
             vals, cnts = np.unique(new[new >= 0], return_counts=True)
             new[np.isin(new, vals[cnts > 1])] = -1  # drop detections fighting over one catalog star
@@ -503,10 +497,10 @@ class InertialAidedMatcher:
         sel = np.flatnonzero(assign >= 0)
         if len(sel) < 3:
             return None
-        q, cov, rms, ok = solve_wahba_batch(v_body[sel][None], self.catalog.vectors[assign[sel]][None], self.sigma_rad)
-        if not ok[0] or rms[0] > self.n_sigma_match * self.sigma_rad * RAD_TO_ARCSEC + 1e-9:
+        r, cov, rms = _fit(v_body[sel], self.catalog.vectors[assign[sel]][None], self.sigma_rad)
+        if cov is None or rms[0] > self.n_sigma_match * self.sigma_rad:
             return None
-        return (len(sel), float(rms[0]), quat_to_matrix(q)[0], assign, cov[0])
+        return (len(sel), float(rms[0]) * RAD_TO_ARCSEC, r[0], assign, cov)
 
     def _densities(self, local: LocalCatalog) -> np.ndarray:
         """Stars per steradian of each head's set, times 2 for the clumping of the sky (Milky Way)."""
@@ -527,7 +521,7 @@ class InertialAidedMatcher:
         (γ: the triangle's angle at the third star); a star is there with probability ``ρ · area``.
         """
         a, b = vi - vm * np.dot(vi, vm), vj - vm * np.dot(vj, vm)
-        sin_g = np.linalg.norm(np.cross(a, b)) / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300)
+        sin_g = np.linalg.norm(_cross(a, b)) / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300)
         return n_pairs_ij * density_m * (2 * self.pair_tol_rad) ** 2 / max(sin_g, 0.05)
 
     def _required_matches(self, lam: float, n_det: int) -> int:
@@ -564,6 +558,40 @@ class InertialAidedMatcher:
             expected += int(inside.sum())
             missing += int(np.sum(~np.isin(idx[inside], matched)))
         return missing, expected
+
+
+def _fit(b, c, sigma_rad):
+    """Wahba by SVD for M hypotheses sharing the measured directions (Markley), for scoring.
+
+    Parameters
+    ----------
+    b : ndarray, shape (k, 3)
+        Measured body directions (the same for every hypothesis).
+    c : ndarray, shape (M, k, 3)
+        Catalog directions of each hypothesis.
+    sigma_rad : float
+
+    Returns
+    -------
+    R : ndarray, shape (M, 3, 3)
+        Body -> ICRS rotations.
+    cov : ndarray, shape (3, 3) or None
+        QUEST covariance (body axes), the same for every hypothesis; None when the directions are
+        (nearly) parallel.
+    rms : ndarray, shape (M,)
+        RMS residual angle, rad.
+    """
+    prof = np.einsum("mki,kj->mij", c, b)
+    u, _, vt = np.linalg.svd(prof)
+    d = np.linalg.det(u) * np.linalg.det(vt)
+    u[:, :, 2] *= d[:, None]
+    r = u @ vt
+    info = (len(b) * np.eye(3) - b.T @ b) / sigma_rad**2
+    w = np.linalg.eigvalsh(info)
+    cov = None if w[0] <= 1e-10 * w[-1] else np.linalg.inv(info)
+    rb = np.einsum("mij,kj->mki", r, b)
+    res = 2 * np.arcsin(np.clip(np.linalg.norm(rb - c, axis=-1) / 2, 0.0, 1.0))
+    return r, cov, np.sqrt(np.mean(res**2, axis=1))
 
 
 def _rot_angle(r1, r2) -> float:

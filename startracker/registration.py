@@ -27,6 +27,7 @@ from startracker.rotations import as_float_array
 
 __all__ = [
     "CHANNELS",
+    "ColorRegistration",
     "RegistrationParams",
     "RotaryTableData",
     "calibrate_registration",
@@ -504,3 +505,59 @@ def generate_rotary_table_data(color_camera, rng: np.random.Generator, noise_px:
     xy = xy_true + rng.normal(0.0, noise_px, size=xy_true.shape) if noise_px > 0 else xy_true.copy()
     return RotaryTableData(phi1_rad=phi1, phi2_rad=phi2, v_cam=v, xy=xy, xy_true=xy_true, noise_px=float(noise_px),
                            zero_index=zero_index, line_mask=line_mask)
+
+
+@dataclass(frozen=True)
+class ColorRegistration:
+    """Registration of both the red and the blue channel onto green: what fusion needs.
+
+    Attributes
+    ----------
+    red, blue : RegistrationParams
+        Calibrated (``success``) transforms of the red and blue detectors into the green frame.
+    """
+
+    red: RegistrationParams
+    blue: RegistrationParams
+
+    def __post_init__(self):
+        for name in ("red", "blue"):
+            p = getattr(self, name)
+            if not isinstance(p, RegistrationParams):
+                raise TypeError(f"{name} must be a RegistrationParams, got {type(p).__name__}")
+            if not p.success:
+                raise ValueError(f"{name} registration failed ({p.status}); calibrate it again")
+
+    @classmethod
+    def calibrate(cls, data: RotaryTableData, rng: np.random.Generator | None = None, **kwargs) -> "ColorRegistration":
+        """Calibrate both channels from rotary-table data (paper 004 §3); ``kwargs`` go to
+        :func:`calibrate_registration` (``n_restarts``, ``model``). Raises ``ValueError`` if either fails."""
+        if not isinstance(data, RotaryTableData):
+            raise TypeError(f"data must be a RotaryTableData, got {type(data).__name__}")
+        zero = data.zero_index if data.zero_index >= 0 else None
+        pp = None if zero is not None else kwargs.pop("principal_point", None)
+        line = data.line_mask if data.line_mask.sum() >= 2 else None
+        out = {}
+        for ch in ("red", "blue"):
+            out[ch] = calibrate_registration(data.channel(ch), data.channel("green"), principal_point=pp, rng=rng,
+                                             zero_index=zero, line_mask=line, **kwargs)
+        return cls(**out)
+
+    def _params(self, channel):
+        if channel in ("green", 1):
+            return None
+        if channel in ("red", 0):
+            return self.red
+        if channel in ("blue", 2):
+            return self.blue
+        raise ValueError(f"channel must be one of {CHANNELS} or 0..2, got {channel!r}")
+
+    def to_green(self, channel, xy) -> np.ndarray:
+        """Channel pixel coordinates (K, 2) -> green frame (identity for green)."""
+        p = self._params(channel)
+        return as_float_array(xy, "xy", last_dim=2).copy() if p is None else p.apply(xy)
+
+    def from_green(self, channel, xy_green) -> np.ndarray:
+        """Green-frame pixel coordinates (K, 2) -> that channel's detector (identity for green)."""
+        p = self._params(channel)
+        return as_float_array(xy_green, "xy_green", last_dim=2).copy() if p is None else p.inverse(xy_green)

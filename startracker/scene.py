@@ -44,6 +44,7 @@ __all__ = [
     "BrightBodyView",
     "Scene",
     "compute_scene",
+    "scene_from_tracks",
 ]
 
 
@@ -552,4 +553,80 @@ def compute_scene(
         q_body_to_world=q_mid,
         q_cam_to_world=quat_from_matrix(r_cw_mid),
         bright_bodies=tuple(views),
+    )
+
+
+def scene_from_tracks(
+    camera: Camera,
+    plan: ExposurePlan,
+    xy_mid_px,
+    vmag,
+    velocity_px_s=None,
+    bv=None,
+    t_frame_start: float = 0.0,
+    n_path_samples: int = 3,
+) -> Scene:
+    """A synthetic scene: stars moving on straight lines at constant image velocity (tests, calibration).
+
+    Star m is at ``xy_mid_px[m] + velocity_px_s[m] (t − t_c)`` with ``t_c`` the middle of the frame's
+    integration window. Catalog fields are placeholders (``star_index = hip = arange(M)``).
+
+    Parameters
+    ----------
+    camera : Camera
+    plan : ExposurePlan
+    xy_mid_px : array_like, shape (M, 2)
+        Positions at ``t_c``, px.
+    vmag : array_like, shape (M,)
+    velocity_px_s : array_like, shape (M, 2), optional
+        Image velocity, px/s (default still).
+    bv : array_like, shape (M,), optional
+    t_frame_start : float
+    n_path_samples : int
+        Odd S >= 3.
+
+    Returns
+    -------
+    Scene
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a startracker.optics.Camera, got {type(camera).__name__}")
+    if not isinstance(plan, ExposurePlan):
+        raise TypeError(f"plan must be an ExposurePlan, got {type(plan).__name__}")
+    xy = as_float_array(xy_mid_px, "xy_mid_px", last_dim=2, ndim=2)
+    m = len(xy)
+    vm = as_float_array(vmag, "vmag", ndim=1)
+    if len(vm) != m:
+        raise ValueError("vmag must have one entry per star")
+    vel = np.zeros((m, 2)) if velocity_px_s is None else as_float_array(velocity_px_s, "velocity_px_s", last_dim=2, ndim=2)
+    if len(vel) != m:
+        raise ValueError("velocity_px_s must have one row per star")
+    b = np.zeros(m) if bv is None else as_float_array(bv, "bv", ndim=1)
+    s = _int_at_least(n_path_samples, "n_path_samples", 3)
+    if s % 2 == 0:
+        raise ValueError(f"n_path_samples must be odd, got {s}")
+    t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))
+    starts = plan.exposure_start_times(t0)
+    path_times = starts[:, None] + plan.exposure_s * np.linspace(0.0, 1.0, s)[None, :]
+    t_c = starts[0] + 0.5 * plan.integration_window_s
+    xy_path = xy[None, None] + vel[None, None] * (path_times - t_c)[:, :, None, None]
+    w, h = camera.resolution
+    mid = xy_path[:, s // 2]
+    visible = (mid[..., 0] >= -0.5) & (mid[..., 0] <= w - 0.5) & (mid[..., 1] >= -0.5) & (mid[..., 1] <= h - 0.5)
+    q_id = np.tile([1.0, 0.0, 0.0, 0.0], (plan.n_exposures, 1))
+    return Scene(
+        camera=camera,
+        plan=plan,
+        t_frame_start=t0,
+        times=path_times[:, s // 2].copy(),
+        path_times=path_times,
+        star_index=np.arange(m, dtype=np.int64),
+        hip=np.arange(m, dtype=np.int64),
+        vmag=vm,
+        bv=b,
+        xy_path=xy_path,
+        visible=visible,
+        q_body_to_world=q_id,
+        q_cam_to_world=q_id.copy(),
+        bright_bodies=(),
     )

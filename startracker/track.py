@@ -59,6 +59,7 @@ __all__ = [
     "match_stars",
     "PredictedStars",
     "predict_star_positions",
+    "prediction_covariance",
     "prediction_sigma_px",
     "prediction_radius_px",
     "InstantAttitudes",
@@ -68,7 +69,9 @@ __all__ = [
 ]
 
 MATCH_METHODS = ("dkvlut", "brute", "kdtree")
-RADIUS_K_SIGMA = 6.0  # P(true spot outside r) = exp(-k²/2) = 1.5e-8
+RADIUS_K_SIGMA = 6.0
+_ROW_OFFSETS = np.array([[0], [1], [2], [3]], dtype=np.int64)
+_SIGNS = np.array([[-1.0], [1.0], [-1.0], [1.0]])  # P(true spot outside r) = exp(-k²/2) = 1.5e-8
 _BRUTE_BLOCK = 2_000_000  # max elements of one distance block (16 MB)
 
 
@@ -99,17 +102,22 @@ def _check_radius(radius_px) -> float:
 
 
 def _nearest_per_query(qi, e, d2, n_obs: int) -> np.ndarray:
-    """From candidate pairs (query qi, predicted e, squared distance d2) within the radius, the nearest
-    predicted index per query, ties to the lowest index; -1 for queries without a candidate."""
+    """From candidate pairs (query qi, predicted e, squared distance d2) within the radius, grouped by query
+    (qi non-decreasing), the nearest predicted index per query, ties to the lowest index; -1 for queries
+    without a candidate."""
     idx = np.full(n_obs, -1, dtype=np.int64)
     if len(qi) == 0:
         return idx
-    o = np.lexsort((e, d2, qi))
-    qs = qi[o]
-    first = np.empty(len(qs), dtype=bool)
-    first[0] = True
-    np.not_equal(qs[1:], qs[:-1], out=first[1:])
-    idx[qs[first]] = e[o][first]
+    new = np.empty(len(qi), dtype=bool)
+    new[0] = True
+    np.not_equal(qi[1:], qi[:-1], out=new[1:])
+    if new.all():  # one candidate per query: nothing to choose
+        idx[qi] = e
+        return idx
+    starts = np.flatnonzero(new)
+    group = np.cumsum(new) - 1
+    tie = d2 == np.minimum.reduceat(d2, starts)[group]
+    idx[qi[starts]] = np.minimum.reduceat(np.where(tie, e, np.iinfo(np.int64).max), starts)
     return idx
 
 
@@ -151,25 +159,28 @@ class DKVLUT:
         # Eq. 5 in one gather for both axes: rows u_a = K(i_a) (1-based) -> 0-based start K(i_a) - 1,
         # u_b = K(i_b) -> 0-based exclusive stop K(i_b); x then y.
         kx, ky = self.kx.k, self.ky.k
-        self._k_table = np.concatenate([np.maximum(kx - 1, 0), kx, np.maximum(ky - 1, 0), ky])
-        self._row_offset = np.array([[-1], [n - 1], [2 * n - 1], [3 * n - 1]], dtype=np.int64)
+        self._k_table = np.concatenate([kx - 1, kx, ky - 1, ky])
+        self._k_table[0] = 0  # K(1) - 1 = -1 -> row 0
+        self._k_table[2 * n] = 0
+        self._row_offset = _ROW_OFFSETS * n - 1
         # Eq. 4 as h = (x ∓ r) / a1 + c with c = (∓tol - b1) / a1. The tolerance (1e-9 of the coordinate
         # scale) widens every range so floor/ceil rounding can never drop a point.
-        inv_a, sign_inv_a, c = np.zeros((4, 1)), np.zeros((4, 1)), np.zeros((4, 1))
-        self._degenerate = []
-        for row, kv in ((0, self.kx), (2, self.ky)):
-            s0, s1, a1, b1 = kv.sorted_values[0], kv.sorted_values[-1], kv.a1, kv.b1
+        inv_a, c, deg = [], [], []
+        for kv in (self.kx, self.ky):
+            s0, s1, a1, b1 = float(kv.sorted_values[0]), float(kv.sorted_values[-1]), float(kv.a1), float(kv.b1)
             tol = 1e-9 * (abs(s0) + abs(s1) + a1)
             # Coordinates (nearly) all equal: the line is meaningless in floating point; every query
             # touching [S(1), S(l_s)] gets the whole table, still a superset of the answer.
             degenerate = not (a1 > 1e-9 * max(1.0, abs(s0), abs(s1)))
-            self._degenerate.append(degenerate)
-            if not degenerate:
-                inv_a[row : row + 2] = 1.0 / a1
-                sign_inv_a[row : row + 2, 0] = (-1.0 / a1, 1.0 / a1)
-                c[row : row + 2, 0] = ((-tol - b1) / a1, (tol - b1) / a1)
-        self._inv_a, self._sign_inv_a, self._c = inv_a, sign_inv_a, c
-        self._any_degenerate = any(self._degenerate)
+            deg.append(degenerate)
+            inv = 0.0 if degenerate else 1.0 / a1
+            inv_a += [inv, inv]
+            c += [0.0, 0.0] if degenerate else [(-tol - b1) * inv, (tol - b1) * inv]
+        self._inv_a = np.array(inv_a)[:, None]
+        self._sign_inv_a = self._inv_a * _SIGNS
+        self._c = np.array(c)[:, None]
+        self._degenerate = deg
+        self._any_degenerate = deg[0] or deg[1]
         self._rank = [None, None]
 
     @staticmethod
@@ -189,7 +200,7 @@ class DKVLUT:
         np.ceil(h[1::2], out=h[1::2])  # i_b = ceil(...)
         i = h.astype(np.int64)
         i += self._row_offset
-        u = self._k_table[i]
+        u = self._k_table.take(i)
         if self._any_degenerate:
             for row, (kv, deg) in enumerate(zip((self.kx, self.ky), self._degenerate)):
                 if deg:
@@ -225,8 +236,7 @@ class DKVLUT:
 
     def _intersection(self, obs_t: np.ndarray, r: float):
         u = self._ranges(obs_t, r)
-        counts = u[1::2] - u[0::2]
-        np.maximum(counts, 0, out=counts)
+        counts = u[1::2] - u[0::2]  # >= 0: i_a <= i_b and K is non-decreasing
         tot = counts.sum(axis=1)
         a = 0 if tot[0] <= tot[1] else 1  # walk the axis with fewer candidates
         cnt = counts[a]
@@ -240,9 +250,9 @@ class DKVLUT:
         rows[2:] = u[2 - 2 * a : 4 - 2 * a]
         rep = np.repeat(rows, cnt, axis=1)
         pos = np.arange(int(tot[a])) - rep[1]  # walked table rows u in [u_a, u_b]
-        ro = self._cross(a)[pos]  # the same stars' rows in the other axis' table
-        keep = (ro >= rep[2]) & (ro < rep[3])  # R_x(u_x) ∩ R_y(u_y), eq. 6
-        return rep[0][keep], (self.kx, self.ky)[a].order[pos[keep]]
+        ro = self._cross(a).take(pos)  # the same stars' rows in the other axis' table
+        keep = np.flatnonzero((ro >= rep[2]) & (ro < rep[3]))  # R_x(u_x) ∩ R_y(u_y), eq. 6
+        return rep[0].take(keep), (self.kx, self.ky)[a].order.take(pos.take(keep))
 
     def _cross(self, axis: int) -> np.ndarray:
         """Row in the other axis' table of each row of ``axis``'s table: ``rank_other[R_axis]``."""
@@ -261,16 +271,13 @@ class DKVLUT:
             return np.empty(0, dtype=np.int64)
         obs_t = np.ascontiguousarray(obs.T)
         qi, e = self._intersection(obs_t, r)
-        d = obs_t[:, qi]
-        d -= self._xy_t[:, e]
-        d2 = d[0] ** 2 + d[1] ** 2  # the shared expression (x_q - x_p)² + (y_q - y_p)²
+        dx = obs_t[0].take(qi)
+        dx -= self._xy_t[0].take(e)
+        dy = obs_t[1].take(qi)
+        dy -= self._xy_t[1].take(e)
+        d2 = dx**2 + dy**2  # the shared expression (x_q - x_p)² + (y_q - y_p)²
         ok = d2 <= r * r
-        qi, e = qi[ok], e[ok]
-        if len(qi) < 2 or (qi[1:] != qi[:-1]).all():  # at most one candidate per point: nothing to choose
-            idx = np.full(len(obs), -1, dtype=np.int64)
-            idx[qi] = e
-            return idx
-        return _nearest_per_query(qi, e, d2[ok], len(obs))
+        return _nearest_per_query(qi[ok], e[ok], d2[ok], len(obs))
 
 
 def _match_brute(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
@@ -466,43 +473,70 @@ def predict_star_positions(
     return PredictedStars(xy[keep], star[keep], inst[keep], on_det[keep], t, q_body)
 
 
-def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, sigma_omega_rad_s: float, sigma_alpha_rad_s2: float, dt_s) -> np.ndarray:
+def _as_cov3(a, name: str) -> np.ndarray:
+    c = as_float_array(a, name)
+    c = c * np.eye(3) if c.ndim == 0 else c
+    if c.shape != (3, 3):
+        raise ValueError(f"{name} must be a float (isotropic variance) or shape (3, 3), got {c.shape}")
+    return c
+
+
+def prediction_covariance(cov_theta_body_rad2, dt_s, cov_omega_body=0.0, cov_alpha_body=0.0) -> np.ndarray:
+    """Attitude error covariance after propagating for ``dt_s`` (body frame, rad²).
+
+    ``P(dt) = P_θ + P_ω dt² + P_α dt⁴ / 4``: the second-order propagation of
+    :func:`~startracker.rotations.quat_integrate` with independent attitude, rate and acceleration errors.
+
+    Parameters
+    ----------
+    cov_theta_body_rad2 : array_like, shape (3, 3)
+    dt_s : float or array_like, shape (N,)
+    cov_omega_body : float or array_like, shape (3, 3)
+        (rad/s)²; a float is an isotropic variance.
+    cov_alpha_body : float or array_like, shape (3, 3)
+        (rad/s²)², estimate error plus unmodelled change; a float is an isotropic variance.
+
+    Returns
+    -------
+    ndarray, shape (3, 3) or (N, 3, 3)
+    """
+    p = _as_cov3(cov_theta_body_rad2, "cov_theta_body_rad2")
+    pw = _as_cov3(cov_omega_body, "cov_omega_body")
+    pa = _as_cov3(cov_alpha_body, "cov_alpha_body")
+    dt = as_float_array(dt_s, "dt_s")[..., None, None]
+    return p + pw * dt**2 + pa * dt**4 / 4.0
+
+
+def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, dt_s=0.0, cov_omega_body=0.0, cov_alpha_body=0.0) -> float:
     """1σ per-axis prediction error of a spot, px, after propagating an attitude for ``dt_s``.
 
-    ``σ_θ²(dt) = σ_0² + σ_ω² dt² + (σ_α dt²/2)²`` per axis (attitude, rate and acceleration uncertainty),
-    with σ_0² the larger cross-boresight variance of ``cov_theta_body_rad2`` in the camera frame for the
-    pitch/yaw part and its boresight variance for roll. Cross-boresight errors move every spot by
-    ``f_px σ``; roll moves a spot by ``ρ σ`` with ρ up to the corner distance. Returns
-    ``sqrt(f_px² σ_cross² + ρ_max² σ_roll²)``.
+    From :func:`prediction_covariance` in the camera frame: a cross-boresight error moves every spot by
+    ``f_px σ``, a roll error moves a spot by ``ρ σ`` with ρ up to the corner distance. Returns
+    ``sqrt(f_px² max(P_xx, P_yy) + ρ_max² P_zz)`` for the largest ``|dt|``.
 
     Parameters
     ----------
     camera : Camera
     cov_theta_body_rad2 : array_like, shape (3, 3)
         Covariance of the attitude error rotation vector in the body frame, rad².
-    sigma_omega_rad_s : float
-        1σ per-axis rate uncertainty, rad/s.
-    sigma_alpha_rad_s2 : float
-        1σ per-axis unmodelled angular acceleration, rad/s².
     dt_s : float or array_like
-        Propagation time(s), s.
+        Propagation time(s), s; the largest magnitude counts.
+    cov_omega_body : float or array_like, shape (3, 3)
+        Rate error covariance in the body frame, (rad/s)²; a float is an isotropic variance.
+    cov_alpha_body : float or array_like, shape (3, 3)
+        Acceleration error covariance (estimate and unmodelled change), (rad/s²)².
 
     Returns
     -------
-    ndarray (shape of ``dt_s``), px
+    float, px
     """
-    p = as_float_array(cov_theta_body_rad2, "cov_theta_body_rad2")
-    if p.shape != (3, 3):
-        raise ValueError(f"cov_theta_body_rad2 must have shape (3, 3), got {p.shape}")
+    dt = float(np.max(np.abs(as_float_array(dt_s, "dt_s")))) if np.size(dt_s) else 0.0
+    pt = prediction_covariance(cov_theta_body_rad2, dt, cov_omega_body, cov_alpha_body)
     rcb = camera.r_cam_to_body
-    pc = rcb.T @ p @ rcb
-    dt = np.abs(np.asarray(dt_s, dtype=np.float64))
-    grow = sigma_omega_rad_s**2 * dt**2 + (0.5 * sigma_alpha_rad_s2 * dt**2) ** 2
-    cross = max(pc[0, 0], pc[1, 1]) + grow
-    roll = pc[2, 2] + grow
+    pc = rcb.T @ pt @ rcb
     w, h = camera.resolution
     rho = float(np.hypot(w, h)) / 2.0
-    return np.sqrt(camera.focal_length_px**2 * cross + rho**2 * roll)
+    return float(np.sqrt(camera.focal_length_px**2 * max(pc[0, 0], pc[1, 1], 0.0) + rho**2 * max(pc[2, 2], 0.0)))
 
 
 def prediction_radius_px(

@@ -9,6 +9,7 @@ from startracker.color import (
     BANDS_NM,
     ChannelResponse,
     ColorCamera,
+    RegistrationParams,
     bv_to_teff,
     planck_photon_radiance,
 )
@@ -139,3 +140,158 @@ def test_color_camera_bad_input():
         ColorCamera(red=g, green=g, blue=g).project_channel("yellow", [0, 0, 1])
     with pytest.raises(ValueError, match="translation"):
         ColorCamera.paper004(translation="table3")
+
+
+# ------------------------------------------------------------------------------ imaging and fusion
+from dataclasses import replace  # noqa: E402
+
+from scipy.spatial import cKDTree  # noqa: E402
+from scipy.stats import spearmanr  # noqa: E402
+
+from startracker.catalog import StarCatalog, load_catalog  # noqa: E402
+from startracker.centroid import extract_centroids  # noqa: E402
+from startracker.color import (  # noqa: E402
+    ColorRegistration,
+    aperture_photometry,
+    channel_scenes,
+    color_ratio_from_fluxes,
+    fuse_channel_centroids,
+    fuse_channel_images,
+    generate_rotary_table_data,
+    paper004_sensor_model,
+    render_color_frame,
+)
+from startracker.imaging import render_expected  # noqa: E402
+from startracker.rotations import quat_random  # noqa: E402
+from startracker.scene import ExposurePlan  # noqa: E402
+
+
+def _static(q):
+    return lambda t: np.tile(q, (len(t), 1))
+
+
+def test_channel_scenes_geometry_and_light_share():
+    """Each channel's scene puts a star where that channel's optics do, with its colour's share of light."""
+    cc = ColorCamera.paper004()
+    v = np.array([[0.05, -0.03, 1.0], [-0.08, 0.06, 1.0]])
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    cat = StarCatalog(hip=np.array([1, 2]), vectors=v, vmag=np.array([4.0, 4.5]), bv=np.array([-0.2, 1.4]))
+    plan = ExposurePlan(1, 0.05, frame_period_s=0.1)
+    scenes = channel_scenes(cc, cat, _static(np.array([1.0, 0, 0, 0])), plan)
+    model = paper004_sensor_model(prnu_sigma=0.0)
+    charge = []
+    for i, sc in enumerate(scenes):
+        order = np.argsort(sc.hip)
+        np.testing.assert_allclose(sc.xy[0][order], cc.project_channel(i, v)[0], atol=1e-9)
+        img = render_expected(sc, model, include_background=False)
+        cols = np.arange(img.shape[1])[None, :]
+        rows = np.arange(img.shape[0])[:, None]
+        per_star = []
+        for xy in sc.xy[0][order]:
+            near = (np.abs(cols - xy[0]) < 12) & (np.abs(rows - xy[1]) < 12)
+            per_star.append(img[near].sum())
+        charge.append(per_star)
+    charge = np.array(charge).T  # (2 stars, 3 channels)
+    share = cc.response.electrons(cat.bv)
+    pe_v0 = model.star_pe(cat.vmag, np.zeros(2), 0.05)
+    np.testing.assert_allclose(charge, pe_v0[:, None] * share, rtol=1e-6)
+    assert charge[0, 2] > charge[0, 0] and charge[1, 0] > charge[1, 2]  # hot star blue, cool star red
+
+
+def _assign(xy, truth, radius=2.0):
+    """Detections -> nearest true star within radius: dict star -> error vector."""
+    d, j = cKDTree(truth).query(xy, distance_upper_bound=radius)
+    out = {}
+    for k in np.flatnonzero(np.isfinite(d)):
+        out.setdefault(int(j[k]), xy[k] - truth[j[k]])
+    return out, int(np.sum(~np.isfinite(d)))
+
+
+@pytest.fixture(scope="module")
+def color_frames():
+    cc = ColorCamera.paper004()
+    cat = load_catalog(7.5)
+    rng = np.random.default_rng(2024)
+    reg = ColorRegistration.calibrate(generate_rotary_table_data(cc, rng), rng)
+    model = paper004_sensor_model()
+    plan = ExposurePlan(1, 0.02, frame_period_s=0.1)
+    frames = []
+    for _ in range(3):
+        scenes = channel_scenes(cc, cat, _static(quat_random(rng)), plan)
+        frames.append((scenes, render_color_frame(scenes, model, rng)))
+    return cc, reg, model, frames
+
+
+def test_fused_centroids_beat_single_channel(color_frames):
+    cc, reg, model, frames = color_frames
+    err = {"green": [], "centroid-fusion": [], "image-fusion": []}
+    false = {"green": 0, "centroid-fusion": 0, "image-fusion": 0}
+    for scenes, images in frames:
+        cents = [extract_centroids(im) for im in images]
+        fused_c = fuse_channel_centroids(cents, reg, gain_e_per_dn=model.gain_e_per_dn)
+        fused_i = extract_centroids(fuse_channel_images(images, reg))
+        g = scenes[1]
+        truth = g.xy_mean[0][g.visible[0]]
+        res = {}
+        for name, xy in (("green", cents[1].xy), ("centroid-fusion", fused_c.xy), ("image-fusion", fused_i.xy)):
+            res[name], n_false = _assign(xy, truth)
+            false[name] += n_false
+        common = set(res["green"]) & set(res["centroid-fusion"]) & set(res["image-fusion"])
+        for name in err:
+            err[name] += [res[name][s] for s in common]
+    rms = {k: float(np.sqrt(np.mean(np.sum(np.array(v) ** 2, axis=1)))) for k, v in err.items()}
+    assert len(err["green"]) >= 40
+    assert rms["centroid-fusion"] < 0.85 * rms["green"]
+    assert rms["image-fusion"] < 0.85 * rms["green"]
+    # a cosmic ray or hot pixel hits one detector: requiring two channels removes what only one sees
+    assert false["centroid-fusion"] < 0.2 * max(false["green"], 1)
+
+
+def test_measured_colour_ratio_tracks_bv(color_frames):
+    cc, reg, model, frames = color_frames
+    meas, expect, bv = [], [], []
+    for scenes, images in frames:
+        fused = fuse_channel_centroids([extract_centroids(im) for im in images], reg,
+                                       gain_e_per_dn=model.gain_e_per_dn)
+        g = scenes[1]
+        vis = np.flatnonzero(g.visible[0])
+        d, j = cKDTree(g.xy_mean[0][vis]).query(fused.xy, distance_upper_bound=2.0)
+        ok = np.isfinite(d)
+        ratio, valid = color_ratio_from_fluxes(aperture_photometry(images, fused.xy[ok], reg))
+        star_bv = g.bv[vis[j[ok]]]
+        meas += list(ratio[valid])
+        bv += list(star_bv[valid])
+        expect += list(cc.response.color_ratio(star_bv[valid]))
+    meas, expect, bv = map(np.array, (meas, expect, bv))
+    assert len(meas) >= 40
+    assert spearmanr(meas, bv).statistic > 0.85
+    assert np.median(np.abs(meas - expect)) < 0.15  # ln-ratio: ~15 % on the flux ratio
+    assert np.median(meas[bv < 0.2]) < np.median(meas[bv > 1.0]) - 0.8
+
+
+def test_fusion_bad_input():
+    reg = ColorRegistration(
+        red=RegistrationParams(k=1.0, theta_rad=0.0, dx_px=0.0, dy_px=0.0, principal_point=(10, 10)),
+        blue=RegistrationParams(k=1.0, theta_rad=0.0, dx_px=0.0, dy_px=0.0, principal_point=(10, 10)))
+    ims = np.zeros((3, 20, 30), np.float32)
+    with pytest.raises(ValueError, match="one shape"):
+        fuse_channel_images([ims[0], ims[1], np.zeros((20, 31))], reg)
+    bad = ims.copy()
+    bad[2, 3, 4] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        fuse_channel_images(bad, reg)
+    with pytest.raises(ValueError, match="3 channel"):
+        fuse_channel_centroids([None, None], reg)
+    with pytest.raises(ValueError, match="match_radius_px"):
+        fuse_channel_centroids([None] * 3, reg, match_radius_px=0.0)
+    with pytest.raises(ValueError, match="registration failed"):
+        ColorRegistration(red=replace(reg.red, success=False, status="collinear"), blue=reg.blue)
+    with pytest.raises(ValueError, match="xy_green"):
+        aperture_photometry(ims, [[np.nan, 3.0]], reg)
+    with pytest.raises(ValueError, match="color_term_per_bv"):
+        cc = ColorCamera.paper004()
+        cat = StarCatalog(hip=np.array([1]), vectors=np.array([[0, 0, 1.0]]), vmag=np.array([4.0]), bv=np.array([0.5]))
+        scenes = channel_scenes(cc, cat, _static(np.array([1.0, 0, 0, 0])), ExposurePlan(1, 0.01))
+        m = paper004_sensor_model()
+        render_color_frame(scenes, replace(m, photometry=replace(m.photometry, color_term_per_bv=0.1)),
+                           np.random.default_rng(0))

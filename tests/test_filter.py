@@ -61,7 +61,8 @@ class Truth:
         return y, self.t, q_meas, t_meas
 
 
-def test_converges_from_5_deg_initial_error():
+@pytest.mark.parametrize("path", ["filterpy", "sequential", "batch"])
+def test_converges_from_5_deg_initial_error(path):
     rng = np.random.default_rng(0)
     spec = GyroSpec(rate_hz=10.0, arw_rad_sqrt_s=1e-5, bias_sigma_rad_s=1 * math.pi / 180 / 3600)
     truth = Truth(rng, spec)
@@ -72,38 +73,58 @@ def test_converges_from_5_deg_initial_error():
     errs = []
     for _ in range(30):
         y, t_end, qm, tm = truth.frame(3, cov)
-        for q, t in zip(qm, tm):
-            f.update(q, cov, t, omega_gyro=y)
-        f.propagate(y, t_end - f.t_s)
+        if path == "filterpy":
+            for q, t in zip(qm, tm):
+                f.update(q, cov, t, omega_gyro=y)
+            f.propagate(y, t_end - f.t_s)
+        else:
+            f.process(y, t_end, qm, tm, np.broadcast_to(cov, (3, 3, 3)), method=path)
         errs.append(attitude_error(f.q_body_to_world, truth.q))
     errs = np.array(errs)
-    # after one frame the 5° error is gone; after 3 s the error is at the tracker-noise level
-    assert np.linalg.norm(errs[0]) < 100 * ARCSEC
+    # after one frame the 5° error is gone (the batch linearises once: second-order residual, gone
+    # after the next frame); after 3 s the error is at the tracker-noise level
+    assert np.linalg.norm(errs[0 if path != "batch" else 1]) < 100 * ARCSEC
     assert np.all(np.abs(errs[-1]) < 4 * f.attitude_sigma_rad)
     assert f.attitude_sigma_rad.max() < 30 * ARCSEC
     assert f.ekf.x.shape == (6, 1) and np.all(f.ekf.x == 0.0)  # filterpy's column vector, reset to zero
 
 
-def test_nees_consistent_over_monte_carlo():
+@pytest.mark.parametrize("method", ["sequential", "batch"])
+def test_nees_consistent_over_monte_carlo(method):
     """Average NEES over 40 runs lies in the two-sided 95% χ² band at most instants (6 dof)."""
-    runs, frames = 40, 200
+    runs, frames, n_s, frame_s = 40, 200, 3, 0.1
     spec = GyroSpec(rate_hz=10.0, arw_rad_sqrt_s=2e-5, rrw_rad_s_sqrt_s=1e-7, bias_sigma_rad_s=5e-5)
     cov = star_tracker_cov()
+    chol = np.linalg.cholesky(cov)
+    covs = np.broadcast_to(cov, (n_s, 3, 3))
+    t_frame = frame_s * np.arange(frames)
+    # the same smooth 20 deg/s-class rate profile in every run, piecewise constant per frame
+    w = np.stack([0.1 * np.sin(0.3 * t_frame), 0.05 * np.cos(0.2 * t_frame), 20 * DEG * np.sin(0.05 * t_frame + 1)], 1)
+    dq_frame = quat_from_rotvec(w * frame_s)
     nees = np.zeros((runs, frames))
     for r in range(runs):
         rng = np.random.default_rng(100 + r)
-        truth = Truth(rng, spec)
+        gyro = Gyro(spec, rng)
+        q_true = np.empty((frames + 1, 4))
+        q_true[0] = quat_random(rng)
+        for k in range(frames):
+            q_true[k + 1] = quat_multiply(q_true[k], dq_frame[k])
+        dt_s = np.sort(frame_s * rng.uniform(0, 1, (frames, n_s)), axis=1)
+        q_at = quat_multiply(q_true[:-1, None, :], quat_from_rotvec(w[:, None, :] * dt_s[..., None]))
+        q_meas = quat_multiply(q_at, quat_from_rotvec(rng.standard_normal((frames, n_s, 3)) @ chol.T))
         p0_att = 1 * DEG
-        q0 = quat_multiply(truth.q, quat_from_rotvec(rng.normal(0.0, p0_att, 3)))  # q_true = q0 ⊗ exp(-e)
+        q0 = quat_multiply(q_true[0], quat_from_rotvec(rng.normal(0.0, p0_att, 3)))
         f = AttitudeEKF(
             q0, arw_rad_sqrt_s=spec.arw_rad_sqrt_s, rrw_rad_s_sqrt_s=spec.rrw_rad_s_sqrt_s,
             sigma_attitude_rad=p0_att, sigma_bias_rad_s=spec.bias_sigma_rad_s,
         )
+        q_est, err_b, p_all = np.empty((frames, 4)), np.empty((frames, 3)), np.empty((frames, 6, 6))
         for k in range(frames):
-            y, t_end, qm, tm = truth.frame(3, cov)
-            f.process(y, t_end, qm, tm, np.broadcast_to(cov, (3, 3, 3)))
-            e = np.concatenate([attitude_error(f.q_body_to_world, truth.q), truth.gyro.bias_rad_s - f.bias_rad_s])
-            nees[r, k] = e @ np.linalg.solve(f.P, e)
+            y = gyro.measure(w[k], rng)
+            f.process(y, t_frame[k] + frame_s, q_meas[k], t_frame[k] + dt_s[k], covs, method=method)
+            q_est[k], err_b[k], p_all[k] = f.q_body_to_world, gyro.bias_rad_s - f.bias_rad_s, f.P
+        e = np.concatenate([attitude_error(q_est, q_true[1:]), err_b], axis=1)
+        nees[r] = np.einsum("ki,ki->k", e, np.linalg.solve(p_all, e[..., None])[..., 0])
     mean_nees = nees.mean(axis=0)
     lo, hi = chi2.ppf([0.025, 0.975], 6 * runs) / runs
     inside = np.mean((mean_nees > lo) & (mean_nees < hi))
@@ -122,7 +143,7 @@ def test_gyro_bias_estimated_during_slew():
     cov = star_tracker_cov()
     for _ in range(600):  # 60 s
         y, t_end, qm, tm = truth.frame(3, cov)
-        f.process(y, t_end, qm, tm, np.broadcast_to(cov, (3, 3, 3)))
+        f.process(y, t_end, qm, tm, np.broadcast_to(cov, (3, 3, 3)), method="sequential")
     err = f.bias_rad_s - b_true
     assert np.all(np.abs(err) < 3 * f.bias_sigma_rad_s)
     assert np.linalg.norm(err) < 0.02 * np.linalg.norm(b_true)
@@ -190,7 +211,7 @@ def test_lean_process_equals_filterpy_sequence(gate):
         if m and frame == 30:
             q_m[0] = quat_multiply(q_m[0], quat_from_rotvec([0.05, 0, 0]))  # outlier for the gate
         covs = np.array([cov0 * rng.uniform(0.5, 2.0) for _ in range(m)])
-        accepted = b.process(w_g, t_g, q_m, t_m, covs)
+        accepted = b.process(w_g, t_g, q_m, t_m, covs, method="sequential")
         acc_a = []
         gi = 0
         tt = t
@@ -215,6 +236,56 @@ def test_lean_process_equals_filterpy_sequence(gate):
     assert a.n_updates == b.n_updates > 100
     if gate is not None:
         assert a.n_rejected == b.n_rejected >= 1
+
+
+def test_batch_agrees_with_sequential_while_tracking():
+    """Same frames, 0 to 21 samples each, several gyro samples per frame: batch = sequential to 1e-4 σ."""
+    rng = np.random.default_rng(7)
+    cov = star_tracker_cov()
+    chol = np.linalg.cholesky(cov)
+    kw = dict(arw_rad_sqrt_s=2e-5, rrw_rad_s_sqrt_s=1e-7, sigma_attitude_rad=20 * ARCSEC, gate_chi2=25.0)
+    q_true = quat_random(rng)
+    seq, bat = AttitudeEKF(q_true, **kw), AttitudeEKF(q_true, **kw)
+    t = 0.0
+    worst = 0.0
+    for frame in range(60):
+        g = 3
+        t_g = t + 0.1 / g * np.arange(1, g + 1)
+        w_g = rng.normal(0.0, 0.2, (g, 3))
+        m = int(rng.integers(0, 22))
+        t_m = np.sort(t + 0.1 * rng.uniform(0, 1, m))
+        edges = np.concatenate([[t], t_g])
+
+        def q_at(tq):
+            q = q_true
+            for j in range(g):
+                dt = min(tq, edges[j + 1]) - edges[j]
+                if dt <= 0:
+                    break
+                q = quat_multiply(q, quat_from_rotvec(w_g[j] * dt))
+            return q
+
+        q_m = np.array([quat_multiply(q_at(x), quat_from_rotvec(chol @ rng.standard_normal(3))) for x in t_m])
+        q_m = q_m.reshape(m, 4)
+        if frame == 40 and m:
+            q_m[-1] = quat_multiply(q_m[-1], quat_from_rotvec([0.0, 0.01, 0.0]))  # both gates reject it
+        covs = np.broadcast_to(cov, (m, 3, 3))
+        acc_s = seq.process(w_g, t_g, q_m, t_m, covs, method="sequential")
+        acc_b = bat.process(w_g, t_g, q_m, t_m, covs, method="batch")
+        np.testing.assert_array_equal(acc_s, acc_b)
+        t = t_g[-1]
+        q_true = q_at(t)
+        d_att = np.linalg.norm(attitude_error(seq.q_body_to_world, bat.q_body_to_world))
+        assert d_att < 1e-4 * seq.attitude_sigma_rad.min()
+        assert np.all(np.abs(seq.bias_rad_s - bat.bias_rad_s) < 1e-4 * seq.bias_sigma_rad_s)
+        # covariances agree in the whitened sense: eig(P_seq⁻¹ P_bat) = 1
+        ratio = np.linalg.eigvals(np.linalg.solve(seq.P, bat.P)).real
+        worst = max(worst, np.abs(ratio - 1.0).max())
+        assert bat.t_s == seq.t_s
+        # and both track the truth
+        assert np.linalg.norm(attitude_error(bat.q_body_to_world, q_true)) < 5 * np.linalg.norm(bat.attitude_sigma_rad)
+    assert seq.n_updates == bat.n_updates and seq.n_rejected == bat.n_rejected == 1
+    assert worst < 1e-4, worst
 
 
 def test_gate_rejects_outlier():

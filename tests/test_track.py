@@ -178,11 +178,17 @@ def test_radius_rule():
     # 10 arcsec cross-boresight attitude error, exact rate: f_px * 4.85e-5 rad ≈ 0.28 px.
     s = np.radians(10 / 3600)
     cov = np.diag([s**2, s**2, 0.0])
-    assert prediction_sigma_px(cam, cov, 0.0, 0.0, 0.1) == pytest.approx(cam.focal_length_px * s, rel=1e-12)
-    # Rate uncertainty grows linearly with the propagation time.
-    g1 = prediction_sigma_px(cam, np.zeros((3, 3)), 1e-3, 0.0, 0.05)
-    g2 = prediction_sigma_px(cam, np.zeros((3, 3)), 1e-3, 0.0, 0.10)
-    assert g2 == pytest.approx(2 * g1)
+    assert prediction_sigma_px(cam, cov, 0.1) == pytest.approx(cam.focal_length_px * s, rel=1e-12)
+    # Rate uncertainty grows linearly with the propagation time, acceleration quadratically.
+    g1 = prediction_sigma_px(cam, np.zeros((3, 3)), 0.05, np.diag([1e-6, 1e-6, 0.0]))
+    g2 = prediction_sigma_px(cam, np.zeros((3, 3)), [0.01, -0.10], np.diag([1e-6, 1e-6, 0.0]))
+    assert g2 == pytest.approx(2 * g1) and g1 == pytest.approx(cam.focal_length_px * 1e-3 * 0.05)
+    a1 = prediction_sigma_px(cam, np.zeros((3, 3)), 0.05, 0.0, 0.1**2)
+    a2 = prediction_sigma_px(cam, np.zeros((3, 3)), 0.10, 0.0, 0.1**2)
+    assert a2 == pytest.approx(4 * a1)
+    # Roll error: the spot in the far corner moves by ρ σ.
+    roll = prediction_sigma_px(cam, np.diag([0.0, 0.0, s**2]))
+    assert roll == pytest.approx(np.hypot(2048, 2048) / 2 * s)
 
 
 # ----------------------------------------------------------------- a multi-exposure frame end to end

@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from startracker.attitude import RAD_TO_ARCSEC, solve_wahba
+from startracker.attitude import RAD_TO_ARCSEC, solve_wahba_single
 from startracker.catalog import StarCatalog
 from startracker.identify.brightness import identify_brightness
 from startracker.identify.database import StarDatabase, build_database, clear_database_cache
@@ -51,6 +51,25 @@ METHODS = {
 }
 
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+_DEFAULT_OPTIONS = IdentifyOptions()
+_OPTIONS_CACHE: dict = {}
+
+
+def _options(options: dict) -> IdentifyOptions:
+    if not options:
+        return _DEFAULT_OPTIONS
+    try:
+        key = tuple(sorted(options.items()))
+        hash(key)
+    except TypeError:
+        return IdentifyOptions.from_kwargs(options)
+    opts = _OPTIONS_CACHE.get(key)
+    if opts is None:
+        opts = IdentifyOptions.from_kwargs(options)
+        if len(_OPTIONS_CACHE) > 256:
+            _OPTIONS_CACHE.clear()
+        _OPTIONS_CACHE[key] = opts
+    return opts
 
 
 def identify(
@@ -99,7 +118,7 @@ def identify(
         raise TypeError(f"camera must be a Camera, got {type(camera).__name__}")
     if not isinstance(catalog, StarCatalog):
         raise TypeError(f"catalog must be a StarCatalog, got {type(catalog).__name__}")
-    opts = IdentifyOptions.from_kwargs(options)
+    opts = _options(options)
     if method == "brightness" and intensities is None:
         raise ValueError("intensities are required for method='brightness'")
     if database is None:
@@ -131,13 +150,16 @@ def identify(
     if frame.n < 3:
         extra = f" ({frame.n_dropped} off the detector or duplicated)" if frame.n_dropped else ""
         return failure(f"fewer than 3 usable detections{extra}")
-    if len(database.pairs) == 0:
-        return failure("catalog too sparse for the field of view")
+    if len(database.pairs) == 0 or database.mean_stars_per_fov < 1.0:
+        return failure(
+            f"catalog too sparse for the field of view ({database.mean_stars_per_fov:.2f} stars per frame on "
+            f"average, {len(database.pairs)} star pairs)"
+        )
     match, status, n_hyp = METHODS[method](database, frame, opts)
     if match is None:
         return failure(status, n_hyp=n_hyp)
     v_ref = database.nav.vectors[match.nav]
-    sol = solve_wahba(frame.v[match.det], v_ref, sigma_rad=frame.sigma_rad)
+    sol = solve_wahba_single(frame.v[match.det], v_ref, sigma_rad=frame.sigma_rad)
     if not sol.success or sol.residual_rms_arcsec > frame.match_tol_rad * RAD_TO_ARCSEC:
         return failure(f"final attitude rejected: {sol.status}", match.n_required, n_hyp)
     star_ids[frame.index[match.det]] = database.nav.hip[match.nav]

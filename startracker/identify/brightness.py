@@ -28,7 +28,6 @@ from __future__ import annotations
 import numpy as np
 
 from startracker.identify.frame import Frame, IdentifyOptions
-from startracker.identify.pairs import expand_ranges
 from startracker.identify.pyramid import _join, triangles
 from startracker.identify.verification import Match, best_of, triangle_false_rate, verify
 
@@ -55,33 +54,28 @@ class OrderedCandidates:
         self.cap = first_mag_cap
         self.cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
-    def fetch_row(self, p: int, qs) -> None:
-        """Look up all pairs ``(p, q)`` for ``q`` in ``qs`` with one k-vector call."""
-        qs = np.array([q for q in qs if (p, q) not in self.cache], dtype=np.int64)
-        if len(qs) == 0:
-            return
-        fr = self.frame
-        start, stop = self.pairs.ranges(fr.angle_rad[p, qs], fr.pair_tol_rad[p, qs])
-        qi, pi = expand_ranges(start, stop)
-        first, second = self.pairs.first[pi], self.pairs.second[pi]
-        fmag, smag = self.pairs.first_mag[pi], self.pairs.second_mag[pi]
-        bounds = np.concatenate([[0], np.cumsum(stop - start)])
-        for t, q in enumerate(qs):
-            sl = slice(bounds[t], bounds[t + 1])
-            f, s = first[sl], second[sl]
-            ok_fwd = np.ones(len(f), dtype=bool) if self.cap is None else fmag[sl] <= self.cap
-            if fr.mag[q] - fr.mag[p] > self.gamma:
-                ids_p, ids_q = f[ok_fwd], s[ok_fwd]
-            else:
-                ok_rev = np.ones(len(f), dtype=bool) if self.cap is None else smag[sl] <= self.cap
-                ids_p = np.concatenate([f[ok_fwd], s[ok_rev]])
-                ids_q = np.concatenate([s[ok_fwd], f[ok_rev]])
-            self.cache[(p, int(q))] = (ids_p, ids_q)
-
     def get(self, p: int, q: int):
-        if (p, q) not in self.cache:
-            self.fetch_row(p, [q])
-        return self.cache[(p, q)]
+        """``(ids_p, ids_q)`` for detections ``p`` (brighter) and ``q``, looked up lazily (k-vector)."""
+        key = (p, q)
+        hit = self.cache.get(key)
+        if hit is not None:
+            return hit
+        fr = self.frame
+        pairs = self.pairs
+        start, stop = pairs.range_one(float(fr.angle_rad[p, q]), float(fr.pair_tol_rad[p, q]))
+        f, s = pairs.first[start:stop], pairs.second[start:stop]
+        fixed = fr.mag[q] - fr.mag[p] > self.gamma
+        if self.cap is None:
+            hit = (f, s) if fixed else (np.concatenate([f, s]), np.concatenate([s, f]))
+        else:
+            ok_fwd = pairs.first_mag[start:stop] <= self.cap
+            if fixed:
+                hit = (f[ok_fwd], s[ok_fwd])
+            else:
+                ok_rev = pairs.second_mag[start:stop] <= self.cap
+                hit = (np.concatenate([f[ok_fwd], s[ok_rev]]), np.concatenate([s[ok_fwd], f[ok_rev]]))
+        self.cache[key] = hit
+        return hit
 
 
 def _verify_group(db, frame, opts, det, hyp, matches):
@@ -102,7 +96,6 @@ def _reference_mode(db, frame, opts, n, matches_out):
     for i in range(n - 2):
         if frame.mag[i] >= opts.ref_mag:
             break
-        cands.fetch_row(i, range(i + 1, n))
         for j in range(n - 1, i + 1, -1):
             for k in range(j - 1, i, -1):
                 tried += 1
@@ -126,7 +119,6 @@ def _four_star_mode(db, frame, opts, n, matches_out):
     n_hyp = 0
     tried = 0
     for i in range(n - 3):
-        cands.fetch_row(i, range(i + 1, n))
         for j in range(n - 1, i + 2, -1):
             for k in range(j - 1, i + 1, -1):
                 tri = None

@@ -87,6 +87,13 @@ class StarDatabase:
         """Size of the pattern-string catalog with paper 003's storage layout, bytes."""
         return self.patterns.paper_bytes
 
+    @property
+    def mean_stars_per_fov(self) -> float:
+        """Mean number of navigation stars on the detector (uniform sky)."""
+        hx, hy = self.camera.half_fov_rad
+        omega = 4.0 * math.asin(math.sin(hx) * math.sin(hy))  # solid angle of the rectangular field
+        return self.n_stars * omega / (4.0 * math.pi)
+
     def p_random(self, tol_rad: float) -> float:
         """Probability that a direction falls within ``tol_rad`` of some navigation star by chance."""
         return min(1.0, self.density_eff_per_sr * math.pi * tol_rad * tol_rad)
@@ -115,10 +122,11 @@ def _density_moments(tree: cKDTree, n_stars: int, radius_rad: float) -> tuple[fl
     counts = tree.query_ball_point(dirs, r=2 * math.sin(radius_rad / 2), return_length=True).astype(float)
     omega = 2 * math.pi * (1 - math.cos(radius_rad))
     rho = counts / omega
-    m1 = max(rho.mean(), 1e-300)
-    m3 = max((rho**3).mean(), 1e-300)
-    m4 = (rho**4).mean()
-    return float(m3 / m1**3), float(m4 / m3) if m3 > 1e-300 else float(n_stars / (4 * math.pi))
+    m1 = rho.mean()
+    m3 = (rho**3).mean()
+    if m3 <= 0:
+        return 1.0, float(n_stars / (4 * math.pi))
+    return float(m3 / m1**3), float((rho**4).mean() / m3)
 
 
 def build_database(
@@ -185,14 +193,12 @@ def build_database(
     t0 = time.perf_counter()
     pix_rad = camera.pixel_size_mm / camera.focal_length_mm
     nav = select_navigation_stars(catalog, mag_limit=mag_limit, min_separation_rad=min_separation_px * pix_rad)
-    if len(nav) < 3:
-        raise ValueError(f"catalog has {len(nav)} usable stars: at least 3 are needed")
     # Corner to corner, with room for distortion and the aberration widening of windows.
     max_angle = min(2.0 * camera.half_diagonal_fov_rad * 1.02, np.pi * 0.999)
     pairs = build_pair_catalog(nav.vectors, nav.vmag, max_angle)
     ref_mask = pairs.first_mag <= ref_mag_limit
     ref_pairs = pairs.subset(ref_mask) if ref_mask.any() else None
-    tree = cKDTree(nav.vectors)
+    tree = cKDTree(nav.vectors.reshape(-1, 3))
     theta_max = min(camera.half_fov_rad)
     guide_mask = np.ones(len(nav), dtype=bool) if guide_mag_limit is None else nav.vmag <= guide_mag_limit
     if guide_min_separation_deg > 0:

@@ -47,7 +47,7 @@ class IdentifyOptions:
         sets how many detections must match (see :mod:`startracker.identify.verification`).
     max_stars : int or None
         How many of the brightest detections feed the hypothesis search (method default when None:
-        pyramid 12, voting 12, brightness 10, string all). Verification always uses every detection.
+        pyramid 12, voting 20, brightness 10, string all). Verification always uses every detection.
     max_triads : int
         Pyramid: most triads tried (in Mortari's "smart" order).
     max_combinations : int
@@ -67,7 +67,8 @@ class IdentifyOptions:
     max_main_stars : int
         Pattern strings: main stars tried, in order of Q = M / n_neighbour.
     max_candidates : int
-        Pattern strings: guide-star candidates verified per main star.
+        Pattern strings: guide-star candidates examined per main star (the five whose neighbours agree
+        best on the roll are verified).
     """
 
     sigma_px: float = 0.5
@@ -85,7 +86,7 @@ class IdentifyOptions:
     ref_mag: float = 3.0
     max_skips: int = 1
     max_main_stars: int = 5
-    max_candidates: int = 20
+    max_candidates: int = 50
 
     @classmethod
     def from_kwargs(cls, options: dict) -> "IdentifyOptions":

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -34,8 +36,9 @@ class StarPairCatalog:
         Dimmer star (``J``).
     first_mag, second_mag : ndarray of float32, shape (M,)
         ``B_I`` and ``B_J`` (V magnitudes).
-    kvector : KVector
-        k-vector over ``angle_rad`` (its ``order`` is the identity because the angles are pre-sorted).
+    kvector : KVector or None
+        k-vector over ``angle_rad`` (its ``order`` is the identity because the angles are pre-sorted);
+        None when there is no pair (a catalog too sparse for the field of view).
     max_angle_rad : float
         Largest angle stored (the FOV diagonal plus a margin).
     """
@@ -44,7 +47,7 @@ class StarPairCatalog:
     second: np.ndarray
     first_mag: np.ndarray
     second_mag: np.ndarray
-    kvector: KVector
+    kvector: KVector | None
     max_angle_rad: float
 
     def __len__(self) -> int:
@@ -53,12 +56,14 @@ class StarPairCatalog:
     @property
     def angle_rad(self) -> np.ndarray:
         """Inter-star angles (M,), rad, ascending (stored once, in the k-vector)."""
-        return self.kvector.sorted_values
+        return self.kvector.sorted_values if self.kvector is not None else np.empty(0)
 
     @property
     def nbytes(self) -> int:
         """Memory of the arrays and the k-vector, bytes."""
         kv = self.kvector
+        if kv is None:
+            return 0
         return int(
             self.first.nbytes
             + self.second.nbytes
@@ -86,20 +91,48 @@ class StarPairCatalog:
         """
         a = np.atleast_1d(np.asarray(angle_rad, dtype=np.float64))
         t = np.asarray(tol_rad, dtype=np.float64)
+        if self.kvector is None:
+            z = np.zeros(len(a), dtype=np.int64)
+            return z, z.copy()
         return self.kvector.query_ranges(a - t, a + t)
+
+    def range_one(self, angle_rad: float, tol_rad: float) -> tuple[int, int]:
+        """:meth:`ranges` for a single window, on Python scalars (a handful of queries per frame).
+
+        The same k-vector look-up (paper 000 eq. 4: line indices, then ``K``) and the same exact trimming
+        as :meth:`startracker.kvector.KVector.query_ranges`, without the array overhead.
+        """
+        kv = self.kvector
+        if kv is None:
+            return 0, 0
+        s = kv.sorted_values
+        n = kv.n
+        lo = angle_rad - tol_rad
+        hi = angle_rad + tol_rad
+        ia = min(max(math.floor((lo - kv.b1) / kv.a1), 1), n)
+        ib = min(max(math.ceil((hi - kv.b1) / kv.a1), 1), n)
+        start = int(kv.k[ia - 1])
+        stop = int(kv.k[ib - 1])
+        while start > 0 and s[start - 1] >= lo:
+            start -= 1
+        while start < n and s[start] < lo:
+            start += 1
+        while stop < n and s[stop] <= hi:
+            stop += 1
+        while stop > 0 and s[stop - 1] > hi:
+            stop -= 1
+        return start, max(stop, start)
 
     def subset(self, mask) -> "StarPairCatalog":
         """The pairs selected by a boolean mask, with their own k-vector (angles stay sorted)."""
         mask = np.asarray(mask, dtype=bool)
         ang = self.angle_rad[mask]
-        if len(ang) == 0:
-            raise ValueError("subset would be empty")
         return StarPairCatalog(
             first=self.first[mask],
             second=self.second[mask],
             first_mag=self.first_mag[mask],
             second_mag=self.second_mag[mask],
-            kvector=KVector(ang),
+            kvector=KVector(ang) if len(ang) else None,
             max_angle_rad=self.max_angle_rad,
         )
 
@@ -137,9 +170,15 @@ def build_pair_catalog(vectors: np.ndarray, vmag: np.ndarray, max_angle_rad: flo
     if not (0 < max_angle_rad < np.pi):
         raise ValueError(f"max_angle_rad must be in (0, pi), got {max_angle_rad}")
     chord = 2.0 * np.sin(max_angle_rad / 2.0)
-    pairs = cKDTree(vectors).query_pairs(chord, output_type="ndarray")
-    if len(pairs) == 0:
-        raise ValueError("no star pair lies within the field of view: the catalog is too sparse")
+    if len(vectors) >= 2:
+        pairs = cKDTree(vectors).query_pairs(chord, output_type="ndarray")
+    else:
+        pairs = np.empty((0, 2), dtype=np.int64)
+    if len(pairs) == 0:  # a catalog too sparse for the field of view: identification will say so
+        e = np.empty(0, dtype=np.int32)
+        f = np.empty(0, dtype=np.float32)
+        return StarPairCatalog(first=e, second=e.copy(), first_mag=f, second_mag=f.copy(), kvector=None,
+                               max_angle_rad=float(max_angle_rad))
     i = pairs.min(axis=1)  # rows are brightest first: the lower index is the brighter star (I)
     j = pairs.max(axis=1)
     vi, vj = vectors[i], vectors[j]

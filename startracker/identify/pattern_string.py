@@ -13,7 +13,9 @@ observed string ``s`` is coded the same way and matched against every guide stri
 KMP-like rule of the paper: observed codes are taken in order and each must find a later catalog code
 with ``|s − n| ≤ 1``; one observed neighbour may stay unmatched (a planet, a false star), a second makes
 the guide star fail. Surviving guide stars are verified (attitude, re-projection, counts); if none
-verifies, the next main star is tried.
+verifies, the next main star is tried. Candidates are ranked by skips, then by how close the guide star's
+catalog magnitude is to the measured one, and only the few whose neighbour correspondences agree on
+one roll about the main star (most agreeing first) go to verification.
 
 Magnitudes: ``M`` is the measured magnitude when intensities are given, otherwise the brightness rank
 (1 for the brightest); it is floored at 0.1 so the ratio keeps its meaning for the few stars brighter
@@ -33,6 +35,7 @@ __all__ = ["PatternCatalog", "build_pattern_catalog", "identify_pattern_string",
 
 N_LEVELS = 99
 _PAD = 255
+_N_VERIFY = 5  # candidates verified per main star, best roll consistency first
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,6 +52,9 @@ class PatternCatalog:
         Sorted codes, padded with 255.
     neighbour : ndarray of int32, shape (G, L)
         Navigation index of the neighbour behind each code (−1 in the padding).
+    below : ndarray of uint16, shape (G, 101)
+        ``below[g, v]``: number of codes of string ``g`` smaller than ``v`` (a search index: the first
+        position with a code >= v, so the tolerant match is a gather instead of a scan).
     theta_max_rad : float
         ``θmax``; one code level is ``θmax / 99``.
     """
@@ -57,6 +63,7 @@ class PatternCatalog:
     length: np.ndarray
     codes: np.ndarray
     neighbour: np.ndarray
+    below: np.ndarray
     theta_max_rad: float
 
     @property
@@ -66,7 +73,7 @@ class PatternCatalog:
     @property
     def nbytes(self) -> int:
         """Bytes held in memory (padded arrays)."""
-        return int(self.guide.nbytes + self.length.nbytes + self.codes.nbytes + self.neighbour.nbytes)
+        return int(self.guide.nbytes + self.length.nbytes + self.codes.nbytes + self.neighbour.nbytes + self.below.nbytes)
 
     @property
     def paper_bytes(self) -> int:
@@ -88,8 +95,8 @@ def build_pattern_catalog(pairs, guide_mask: np.ndarray, theta_max_rad: float) -
         Which navigation stars are guide stars.
     theta_max_rad : float
     """
-    start, stop = pairs.kvector.query_ranges(0.0, theta_max_rad)
-    sl = slice(int(start[0]), int(stop[0]))
+    start, stop = pairs.range_one(theta_max_rad / 2.0, theta_max_rad / 2.0)  # angles in [0, θmax]
+    sl = slice(start, stop)
     a, b, ang = pairs.first[sl], pairs.second[sl], pairs.angle_rad[sl]
     keep = guide_mask[a] & guide_mask[b]
     a, b, ang = a[keep], b[keep], ang[keep]
@@ -111,11 +118,16 @@ def build_pattern_catalog(pairs, guide_mask: np.ndarray, theta_max_rad: float) -
     codes[rows, col] = code
     neigh[rows, col] = other
     by_len = np.argsort(length, kind="stable")
+    below = np.zeros((len(guides), N_LEVELS + 2), dtype=np.uint16)
+    if len(rows):
+        np.add.at(below, (rows, np.minimum(code, N_LEVELS) + 1), 1)
+        below = np.cumsum(below, axis=1, dtype=np.uint16)
     return PatternCatalog(
         guide=guides[by_len],
         length=length[by_len].astype(np.int16),
         codes=codes[by_len],
         neighbour=neigh[by_len],
+        below=below[by_len],
         theta_max_rad=float(theta_max_rad),
     )
 
@@ -141,24 +153,81 @@ def match_strings(cat: PatternCatalog, observed: np.ndarray, max_skips: int):
     q = len(observed)
     first = int(np.searchsorted(cat.length, q - max_skips, side="left"))
     rows = np.arange(first, len(cat.guide))
-    codes = cat.codes[first:].astype(np.int16)
-    col = np.arange(codes.shape[1])
+    length = cat.length[rows].astype(np.int64)
+    l_max = cat.codes.shape[1]
     ptr = np.zeros(len(rows), dtype=np.int64)
     skips = np.zeros(len(rows), dtype=np.int64)
     pos = np.full((len(rows), q), -1, dtype=np.int64)
-    for t in range(q):  # one pass per observed code (a handful), vectorised over the guide stars
+    for t in range(q):  # one pass per observed code (a handful), vectorised over the guide strings
         if len(rows) == 0:
             break
-        ok = (np.abs(codes - int(observed[t])) <= 1) & (col[None, :] >= ptr[:, None])
-        has = ok.any(axis=1)
-        at = ok.argmax(axis=1)
-        pos[has, t] = at[has]
-        ptr[has] = at[has] + 1
-        skips[~has] += 1
-        alive = skips <= max_skips
-        if not alive.all():
-            rows, codes, ptr, skips, pos = rows[alive], codes[alive], ptr[alive], skips[alive], pos[alive]
+        s_t = int(observed[t])
+        # First position at or after the pointer whose code is >= s - 1; a match when its code <= s + 1.
+        at = np.maximum(cat.below[rows, max(s_t - 1, 0)], ptr)
+        code = cat.codes[rows, np.minimum(at, l_max - 1)]
+        hit = (at < length) & (code <= s_t + 1)
+        pos[hit, t] = at[hit]
+        ptr[hit] = at[hit] + 1
+        skips += ~hit
+        if not hit.all():
+            alive = skips <= max_skips
+            if not alive.all():
+                rows, length, ptr, skips, pos = rows[alive], length[alive], ptr[alive], skips[alive], pos[alive]
     return rows, pos, skips
+
+
+def _azimuth(axis: np.ndarray, vec: np.ndarray) -> np.ndarray:
+    """Azimuth (rad) of ``vec`` (..., K, 3) about unit ``axis`` (..., 3) in a right-handed basis."""
+    ref = np.where(np.abs(axis[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    e1 = ref - axis * np.sum(ref * axis, axis=-1, keepdims=True)
+    e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+    e2 = np.stack(
+        [
+            axis[..., 1] * e1[..., 2] - axis[..., 2] * e1[..., 1],
+            axis[..., 2] * e1[..., 0] - axis[..., 0] * e1[..., 2],
+            axis[..., 0] * e1[..., 1] - axis[..., 1] * e1[..., 0],
+        ],
+        axis=-1,
+    )
+    x = np.einsum("...kj,...j->...k", vec, e1)
+    y = np.einsum("...kj,...j->...k", vec, e2)
+    return np.arctan2(y, x)
+
+
+def roll_inliers(v_main, v_nb, theta_nb, u_main, u_nb, valid, tol_rad: float):
+    """Which (observed, catalog) neighbour correspondences agree on the roll about the main star.
+
+    A string match fixes the main star and each neighbour's distance from it, not the azimuth. With the
+    main star aligned to its catalog direction, each correspondence implies a roll ``Δφ`` about it (the
+    difference of the azimuths in the two frames, constant for all true pairs because the rotation is
+    proper); correct pairs agree within ``tol`` over their distance, wrong ones (neighbours with nearly
+    the same code swapped, chance matches) scatter. Vectorised over C candidate guide stars.
+
+    Parameters
+    ----------
+    v_main : ndarray, shape (3,)
+        Main star, camera frame.
+    v_nb : ndarray, shape (q, 3)
+        Observed neighbours, camera frame.
+    theta_nb : ndarray, shape (q,)
+        Their angles from the main star, rad.
+    u_main : ndarray, shape (C, 3)
+        Catalog main star of each candidate, ICRS.
+    u_nb : ndarray, shape (C, q, 3)
+        Catalog neighbour matched to each observed neighbour (anything where not ``valid``).
+    valid : ndarray of bool, shape (C, q)
+    tol_rad : float
+
+    Returns
+    -------
+    ndarray of bool, shape (C, q)
+        The largest agreeing group of each candidate.
+    """
+    dphi = _azimuth(u_main, u_nb) - _azimuth(v_main, v_nb)[None, :]
+    diff = np.abs((dphi[:, :, None] - dphi[:, None, :] + np.pi) % (2 * np.pi) - np.pi)
+    agree = (diff * np.maximum(theta_nb[:, None], theta_nb[None, :]) <= tol_rad) & valid[:, :, None] & valid[:, None, :]
+    best = agree.sum(axis=2).argmax(axis=1)
+    return agree[np.arange(len(u_main)), best]
 
 
 def identify_pattern_string(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | None, str, int]:
@@ -183,7 +252,7 @@ def identify_pattern_string(db, frame: Frame, opts: IdentifyOptions) -> tuple[Ma
         return None, "no detection has two neighbours within theta_max", 0
     n_stars = float(db.n_stars)
     nav_vec = db.nav.vectors
-    hyp_tol = 3.0 * frame.match_tol_rad
+    tol = 2.0 * frame.match_tol_rad
     n_hyp = 0
     for main in mains:
         others = np.flatnonzero(within[main])
@@ -193,27 +262,28 @@ def identify_pattern_string(db, frame: Frame, opts: IdentifyOptions) -> tuple[Ma
         rows, pos, skips = match_strings(cat, codes, opts.max_skips)
         if len(rows) == 0:
             continue
-        rank = np.lexsort((np.abs(cat.length[rows] - len(codes)), skips))[: opts.max_candidates]
+        # Rank: fewest skips, then the catalog magnitude nearest the measured one (when known).
+        if frame.mag is not None:
+            dmag = np.abs(db.nav.vmag[cat.guide[rows]] - frame.mag[main])
+        else:
+            dmag = np.abs(cat.length[rows] - len(codes)).astype(float)
+        rank = np.lexsort((dmag, skips))[: opts.max_candidates]
+        sub = rows[rank]
+        p = pos[rank]
+        valid = p >= 0
+        nb = cat.neighbour[sub[:, None], np.maximum(p, 0)]
+        inl = roll_inliers(frame.v[main], frame.v[others], frame.angle_rad[main, others], nav_vec[cat.guide[sub]],
+                           nav_vec[nb], valid, tol)
+        n_inl = inl.sum(axis=1)
+        hyps = [(int(n_inl[c]), int(rank[c]), others[inl[c]], nb[c][inl[c]]) for c in np.flatnonzero(n_inl >= 2)]
+        hyps.sort(key=lambda h: -h[0])
         matches = []
-        for r in rank:  # a handful of candidate guide stars
-            got = pos[r] >= 0
-            det = np.concatenate([[main], others[got]])
-            nav = np.concatenate([[cat.guide[rows[r]]], cat.neighbour[rows[r], pos[r][got]]])
-            if len(det) < 3:
-                continue
-            # Radial codes do not fix which of two close codes is which: drop pairs that do not fit.
-            while len(det) >= 3:
-                rot = fast_rotation(frame.v[det], nav_vec[nav])
-                res = np.linalg.norm(frame.v[det] @ rot.T - nav_vec[nav], axis=1)
-                worst = int(np.argmax(res))
-                if res[worst] <= hyp_tol:
-                    break
-                det, nav = np.delete(det, worst), np.delete(nav, worst)
-            if len(det) < 3:
-                continue
+        for _, r, det_nb, nav_nb in hyps[:_N_VERIFY]:
+            det = np.concatenate([[main], det_nb])
+            nav = np.concatenate([[cat.guide[rows[r]]], nav_nb])
             n_hyp += 1
             lam = triangle_false_rate(frame, det[0], det[1], det[2], n_stars, db.clumping3)
-            mt = verify(db, frame, det, nav, lam, opts.false_alarm, rot=rot)
+            mt = verify(db, frame, det, nav, lam, opts.false_alarm)
             if mt is not None:
                 matches.append(mt)
         best, status = best_of(matches, frame.match_tol_rad)

@@ -14,6 +14,8 @@ low-confidence answer (two different verified attitudes make the frame ambiguous
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from startracker.identify.frame import Frame, IdentifyOptions
@@ -43,22 +45,29 @@ class PairCandidates:
         self.cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     def fetch(self, keys):
-        need = [pq for pq in keys if pq not in self.cache]
-        if not need:
-            return
-        p = [a for a, _ in need]
-        q = [b for _, b in need]
-        start, stop = self.pairs.ranges(self.frame.angle_rad[p, q], self.frame.pair_tol_rad[p, q])
+        ang, tol = self.frame.angle_rad, self.frame.pair_tol_rad
         first, second = self.pairs.first, self.pairs.second
-        for t, key in enumerate(need):  # the window of one pair is a contiguous slice of the catalog
-            f = first[start[t] : stop[t]]
-            s = second[start[t] : stop[t]]
+        for key in keys:
+            if key in self.cache:
+                continue
+            p, q = key
+            # The window of one pair is a contiguous slice of the angle-sorted catalog.
+            start, stop = self.pairs.range_one(float(ang[p, q]), float(tol[p, q]))
+            f = first[start:stop]
+            s = second[start:stop]
             self.cache[key] = (np.concatenate([f, s]), np.concatenate([s, f]))
 
     def get(self, p: int, q: int):
-        if (p, q) not in self.cache:
-            self.fetch([(p, q)])
+        if (p, q) in self.cache:
+            return self.cache[(p, q)]
+        if (q, p) in self.cache:
+            ids_q, ids_p = self.cache[(q, p)]
+            return ids_p, ids_q
+        self.fetch([(p, q)])
         return self.cache[(p, q)]
+
+    def count(self, p: int, q: int) -> int:
+        return len(self.get(p, q)[0])
 
 
 def _join(a_left: np.ndarray, a_right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -82,10 +91,15 @@ def _join(a_left: np.ndarray, a_right: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return li, ri
 
 
-def _members(ids: np.ndarray, n: int) -> np.ndarray:
-    m = np.zeros(n, dtype=bool)
-    m[ids] = True
-    return m
+def _cross(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (M, 3) arrays (cheaper than numpy.cross for small M)."""
+    return np.column_stack(
+        [
+            x[:, 1] * y[:, 2] - x[:, 2] * y[:, 1],
+            x[:, 2] * y[:, 0] - x[:, 0] * y[:, 2],
+            x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0],
+        ]
+    )
 
 
 def triangles(db, frame: Frame, cands, i: int, j: int, k: int) -> np.ndarray:
@@ -104,30 +118,30 @@ def triangles(db, frame: Frame, cands, i: int, j: int, k: int) -> np.ndarray:
     ai2, ck = cands.get(i, k)
     if len(ai) == 0 or len(ai2) == 0:
         return empty
-    n_nav = db.n_stars
-    both = _members(ai, n_nav) & _members(ai2, n_nav)
-    k1 = both[ai]
-    k2 = both[ai2]
+    mark = np.zeros(db.n_stars, dtype=np.int8)
+    mark[ai] = 1
+    mark[ai2] |= 2
+    k1 = mark[ai] == 3
+    k2 = mark[ai2] == 3
     ai, bj, ai2, ck = ai[k1], bj[k1], ai2[k2], ck[k2]
     li, ri = _join(ai, ai2)
     if len(li) == 0:
         return empty
     a, b, c = ai[li], bj[li], ck[ri]
     nav = db.nav.vectors
-    cos_bc = np.einsum("ij,ij->i", nav[b], nav[c])
+    vb, vc = nav[b], nav[c]
+    cos_bc = np.einsum("ij,ij->i", vb, vc)
     th, tol = frame.angle_rad[j, k], frame.pair_tol_rad[j, k]
-    ok = (cos_bc <= np.cos(max(th - tol, 0.0))) & (cos_bc >= np.cos(min(th + tol, np.pi))) & (b != c)
-    if not ok.any():
+    ok = (cos_bc <= math.cos(max(th - tol, 0.0))) & (cos_bc >= math.cos(min(th + tol, math.pi)))
+    sel = np.flatnonzero(ok)
+    if len(sel) == 0:
         return empty
-    a, b, c = a[ok], b[ok], c[ok]
+    a, b, c = a[sel], b[sel], c[sel]
     v = frame.v
-    s_meas = np.dot(v[i], np.cross(v[j], v[k]))
-    s_cat = np.einsum("ij,ij->i", nav[a], np.cross(nav[b], nav[c]))
+    s_meas = float(np.dot(v[i], np.cross(v[j], v[k])))
+    s_cat = np.einsum("ij,ij->i", nav[a], _cross(vb[sel], vc[sel]))
     same = (s_cat > 0) == (s_meas > 0)
-    hyp = np.column_stack([a[same], b[same], c[same]])
-    if len(hyp) > 1:
-        hyp = np.unique(hyp, axis=0)
-    return hyp
+    return np.column_stack([a[same], b[same], c[same]])
 
 
 def confirm_fourth(db, frame: Frame, det3, hyp: np.ndarray, rest: np.ndarray):
@@ -178,6 +192,12 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | N
         if t >= opts.max_triads:
             break
         cands.fetch([(i, j), (i, k), (j, k)])
+        # Apex opposite the widest window: the join then runs on the two shortest candidate lists.
+        c_ij, c_ik, c_jk = cands.count(i, j), cands.count(i, k), cands.count(j, k)
+        if c_ij >= c_ik and c_ij >= c_jk:
+            i, j, k = k, i, j
+        elif c_ik >= c_jk:
+            i, j, k = j, i, k
         hyp = triangles(db, frame, cands, i, j, k)
         if len(hyp) == 0:
             continue

@@ -109,15 +109,22 @@ def triangle_false_rate(frame: Frame, i: int, j: int, k: int, n_stars: float, cl
 
 
 def _binom_tail(n: int, p: float, e: int) -> float:
-    """P(Binomial(n, p) >= e), summed from the tail (accurate for tiny p)."""
+    """P(Binomial(n, p) >= e), summed from the tail term upwards (accurate for tiny p)."""
     if e <= 0:
         return 1.0
     if e > n:
         return 0.0
+    if p >= 1.0:
+        return 1.0
     q = 1.0 - p
-    total = 0.0
-    for x in range(e, min(n, e + 40) + 1):
-        total += math.comb(n, x) * p**x * q ** (n - x)
+    term = math.exp(math.lgamma(n + 1) - math.lgamma(e + 1) - math.lgamma(n - e + 1) + e * math.log(p) + (n - e) * math.log(q)) if p > 0 else 0.0
+    total = term
+    ratio = p / q
+    x = e
+    while x < n and term > 1e-6 * total:
+        term *= (n - x) / (x + 1) * ratio
+        total += term
+        x += 1
     return min(total, 1.0)
 
 
@@ -170,7 +177,7 @@ def match_detections(db, v_icrs: np.ndarray, tol_rad: float) -> tuple[np.ndarray
     det = np.flatnonzero(dist <= chord)
     nav = idx[det]
     d = dist[det]
-    if len(nav) > 1 and len(np.unique(nav)) < len(nav):
+    if len(nav) > 1 and len(set(nav.tolist())) < len(nav):
         o = np.lexsort((d, nav))
         first = np.ones(len(o), dtype=bool)
         first[1:] = nav[o][1:] != nav[o][:-1]

@@ -1,0 +1,656 @@
+"""The star tracker: one call runs one camera frame through the lost -> acquire -> track state machine.
+
+Modes (``StarTracker.mode``, and ``FrameResult.mode`` = the mode *after* the frame)
+------------------------------------------------------------------------------------
+``lost``
+    No usable attitude. First, if a recent lock (younger than ``coast_max_s``) or a ``q_body_prior`` is
+    available, the frame is tried as a tracking frame from that state with the radius grown by the gap
+    (a short outage recovers straight to ``track``). Otherwise lost-in-space identification
+    (:func:`startracker.identify.identify`) runs on a single-exposure frame; a success becomes a
+    *candidate* and the mode ``acquire``. No sample is emitted from an unconfirmed identification.
+``acquire``
+    The next frame confirms the candidate. With a gyro rate, by tracking: prediction from the candidate
+    attitude and the gyro rate, DKVLUT matching, the lock test. Without a gyro, by a second independent
+    identification whose rotation from the candidate implies a rate below ``max_rate_deg_s`` (two wrong
+    identifications agreeing that closely are practically impossible); that rate then seeds tracking.
+    Confirmed: samples are emitted and the mode is ``track``; not confirmed: ``lost`` (or a new candidate).
+``track``
+    Paper 000's tracking mode: predicted spots at the N exposure instants from the last attitude, rate
+    and acceleration (:func:`startracker.track.predict_star_positions`), matched with the chosen matcher
+    inside the radius of the prediction's uncertainty (:func:`startracker.track.prediction_radius_px`),
+    grouped by instant into N Wahba attitudes (:func:`startracker.track.attitudes_per_instant`).
+
+Lock test (every tracking attempt): at least one instant solved, at least ``min_stars_per_instant``
+matched stars, matched fraction of the predicted on-detector spots >= ``min_matched_fraction``, RMS
+residual <= ``max_residual_arcsec``. Failing it drops the tracker to ``lost``: stray light or a frame of
+false objects loses the lock instead of producing a confident wrong attitude.
+
+Exposure plan: while lost or acquiring a single exposure is requested (lost-in-space needs one spot per
+star); while tracking ``N = clip(1 + round(|ω| / rate_per_exposure_deg_s), 1, max_exposures)``, paper 000
+§5's plan (N from 1 to 21 as the rate goes from 0 to 20 °/s, spots of one star ~10 px apart).
+
+Motion state after a tracked frame: the last solved instant's attitude and covariance; the body rate
+from a least-squares line through the instants' rotation vectors (or the gyro, or the rotation between
+two frames for N = 1); the angular acceleration from the change of rate between frames (or between gyro
+readings).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from startracker.attitude import RAD_TO_ARCSEC
+from startracker.catalog import StarCatalog
+from startracker.optics import Camera
+from startracker.rotations import (
+    as_float_array,
+    quat_conjugate,
+    quat_multiply,
+    quat_normalize,
+    quat_to_rotvec,
+)
+from startracker.track import (
+    MATCH_METHODS,
+    RADIUS_K_SIGMA,
+    attitudes_per_instant,
+    match_stars,
+    predict_star_positions,
+    prediction_covariance,
+    prediction_radius_px,
+    prediction_sigma_px,
+)
+
+__all__ = ["StarTracker", "FrameResult", "AttitudeSample", "MotionState", "MODES"]
+
+MODES = ("lost", "acquire", "track")
+
+
+@dataclass(frozen=True)
+class AttitudeSample:
+    """One attitude measurement, at one exposure instant.
+
+    Attributes
+    ----------
+    t_s : float
+        Exposure instant (mid-exposure), s.
+    q_body_to_icrs : ndarray, shape (4,)
+    covariance_rad2 : ndarray, shape (3, 3)
+        Covariance of the attitude error rotation vector in the body frame (``q_true = q ⊗ δq(δθ)``), rad².
+    n_stars : int
+    """
+
+    t_s: float
+    q_body_to_icrs: np.ndarray
+    covariance_rad2: np.ndarray
+    n_stars: int
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """What one frame produced.
+
+    Attributes
+    ----------
+    mode : str
+        Mode after this frame: "lost", "acquire" or "track".
+    samples : list of AttitudeSample
+        Up to N samples (one per solved exposure instant), time-ordered.
+    n_matched : int
+        Detections used (tracking) or identified (lost-in-space).
+    n_detections : int
+    matching_latency_ms : float
+        Wall clock of prediction + matching in this frame (0 when no tracking attempt ran).
+    update_rate_hz : float
+        Samples of this frame divided by the frame interval.
+    status : str
+    n_exposures : int
+        Exposure instants of this frame.
+    n_predicted : int
+        Predicted spots on the detector (tracking attempts).
+    radius_px : float
+        Star-neighbourhood radius used (0 without a tracking attempt).
+    identify_latency_ms : float
+        Wall clock of lost-in-space identification (0 when it did not run).
+    residual_arcsec : float
+        RMS residual over the solved instants (inf when none).
+    skipped_instants : tuple of int
+        Exposure instants without a solution.
+    """
+
+    mode: str
+    samples: list
+    n_matched: int
+    n_detections: int
+    matching_latency_ms: float
+    update_rate_hz: float
+    status: str
+    n_exposures: int = 1
+    n_predicted: int = 0
+    radius_px: float = 0.0
+    identify_latency_ms: float = 0.0
+    residual_arcsec: float = float("inf")
+    skipped_instants: tuple = ()
+
+
+@dataclass(frozen=True)
+class MotionState:
+    """Attitude, rate and acceleration at a reference time, with their uncertainty (body frame).
+
+    Attributes
+    ----------
+    t_s : float
+        Reference time: the last solved exposure instant, s.
+    q_body_to_icrs : ndarray, shape (4,)
+    cov_theta_rad2 : ndarray, shape (3, 3)
+    omega_body : ndarray, shape (3,)
+        Rate at ``t_s``, rad/s.
+    cov_omega : ndarray, shape (3, 3)
+        (rad/s)².
+    alpha_body : ndarray, shape (3,)
+        Angular acceleration, rad/s².
+    cov_alpha : ndarray, shape (3, 3)
+        Error of the acceleration estimate, (rad/s²)² (the unmodelled change is added when predicting).
+    rate_meas : tuple (t_s, omega (3,), cov (3, 3)) or None
+        The last rate *measurement* (fit over a frame's instants, two-frame difference or gyro) and its
+        time, differenced with the next one into the acceleration.
+    alpha_known : bool
+        The acceleration was estimated (two rate measurements); until then the plan asks for N = 1.
+    """
+
+    t_s: float
+    q_body_to_icrs: np.ndarray
+    cov_theta_rad2: np.ndarray
+    omega_body: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    cov_omega: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    alpha_body: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    cov_alpha: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    rate_meas: tuple | None = None
+    alpha_known: bool = False
+
+
+@dataclass
+class _Candidate:
+    t_s: float
+    q_body_to_icrs: np.ndarray
+    cov_theta_rad2: np.ndarray
+    n_matched: int
+
+
+@dataclass
+class _Attempt:
+    ok: bool
+    status: str
+    samples: list
+    n_matched: int = 0
+    n_predicted: int = 0
+    radius_px: float = 0.0
+    latency_ms: float = 0.0
+    residual_arcsec: float = float("inf")
+    skipped: tuple = ()
+    state: MotionState | None = None
+
+
+def _positive(name, v, allow_zero=False):
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+        raise ValueError(f"{name} must be a finite number, got {v!r}")
+    if v < 0 or (v == 0 and not allow_zero):
+        raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'}, got {v!r}")
+    return float(v)
+
+
+class StarTracker:
+    """Lost-in-space identification plus multi-exposure tracking, one frame per call.
+
+    Parameters
+    ----------
+    camera : Camera
+        Its ``q_cam_to_body`` mounting turns camera attitudes into body attitudes.
+    catalog : StarCatalog
+        Navigation stars, used for identification and prediction (close doubles that blend into one spot
+        are best removed with :func:`startracker.catalog.select_navigation_stars`).
+    identify_method : str
+        Lost-in-space method of :func:`startracker.identify.identify`.
+    matcher : {"dkvlut", "brute", "kdtree"}
+    centroid_sigma_px : float
+        1σ per-axis centroid noise, px: weights, radius, residual tests, identification tolerances.
+    frame_period_s : float
+        Frame interval assumed before two frames have been seen.
+    max_exposures : int
+        Largest N of the exposure plan.
+    rate_per_exposure_deg_s : float
+        One more exposure per this much body rate.
+    radius_k_sigma, radius_min_px, radius_max_px : float
+        Radius rule ``r = clip(k √(σ_c² + σ_pred²), r_min, r_max)``.
+    min_stars_per_instant : int
+        Stars needed for an instant's attitude.
+    min_matched_fraction : float
+        Lock test: matched share of the predicted on-detector spots.
+    max_residual_arcsec : float, optional
+        Lock test on the RMS residual; default 3 × the expected √2 σ_c / f_px.
+    outlier_k_sigma : float
+        Residual test removing a wrong match inside an instant.
+    innovation_gate : float
+        Lock test: mean over the solved instants of ``δᵀ S⁻¹ δ``, δ the rotation from the predicted to the
+        solved attitude and S the sum of their covariances (χ² with 3 degrees of freedom: 30 is exceeded
+        with probability 1e-6 when the motion model holds). It catches a whole frame matched one exposure
+        off (spots of instant n taken for instant n ± 1), which no residual can see.
+    shift_k_sigma : float
+        Exposure plan: N is also limited so that the spots of one star stay ``2 shift_k_sigma`` prediction
+        σ apart, keeping that one-exposure-off match improbable.
+    accel_sigma_rad_s2 : float
+        Unmodelled change of the angular acceleration over a prediction (1σ per axis), rad/s².
+    recovery_accel_sigma_rad_s2 : float
+        Acceleration uncertainty assumed when recovering a lost lock from the old state (the lock was
+        usually lost because the motion model failed).
+    gyro_sigma_rad_s : float
+        1σ per-axis error of a gyro rate passed as ``omega_body``.
+    max_rate_deg_s : float
+        Largest plausible body rate (confirmation of two identifications without a gyro).
+    coast_max_s : float
+        How long a lost lock may be recovered from the old state by prediction.
+    prior_sigma_rad : float
+        1σ per-axis error assumed for a ``q_body_prior``.
+    identify_options : dict, optional
+        Extra keyword options for ``identify`` (``sigma_px`` defaults to ``centroid_sigma_px``).
+    """
+
+    def __init__(
+        self,
+        camera: Camera,
+        catalog: StarCatalog,
+        identify_method: str = "pyramid",
+        matcher: str = "dkvlut",
+        centroid_sigma_px: float = 0.5,
+        frame_period_s: float = 0.1,
+        max_exposures: int = 21,
+        rate_per_exposure_deg_s: float = 1.0,
+        radius_k_sigma: float = RADIUS_K_SIGMA,
+        radius_min_px: float = 2.0,
+        radius_max_px: float = 40.0,
+        min_stars_per_instant: int = 3,
+        min_matched_fraction: float = 0.3,
+        max_residual_arcsec: float | None = None,
+        outlier_k_sigma: float = 5.0,
+        innovation_gate: float = 30.0,
+        shift_k_sigma: float = 4.0,
+        accel_sigma_rad_s2: float = 0.02,
+        recovery_accel_sigma_rad_s2: float = 0.2,
+        gyro_sigma_rad_s: float = 1e-4,
+        max_rate_deg_s: float = 30.0,
+        coast_max_s: float = 1.0,
+        prior_sigma_rad: float = 1e-3,
+        identify_options: dict | None = None,
+    ):
+        if not isinstance(camera, Camera):
+            raise TypeError(f"camera must be a startracker.optics.Camera, got {type(camera).__name__}")
+        if not isinstance(catalog, StarCatalog):
+            raise TypeError(f"catalog must be a startracker.catalog.StarCatalog, got {type(catalog).__name__}")
+        if matcher not in MATCH_METHODS:
+            raise ValueError(f"matcher must be one of {MATCH_METHODS}, got {matcher!r}")
+        from startracker.identify import METHODS as ID_METHODS
+
+        if identify_method not in ID_METHODS:
+            raise ValueError(f"identify_method must be one of {sorted(ID_METHODS)}, got {identify_method!r}")
+        self.camera = camera
+        self.catalog = catalog
+        self.identify_method = identify_method
+        self.matcher = matcher
+        self.centroid_sigma_px = _positive("centroid_sigma_px", centroid_sigma_px)
+        self.frame_period_s = _positive("frame_period_s", frame_period_s)
+        if isinstance(max_exposures, bool) or int(max_exposures) != max_exposures or max_exposures < 1:
+            raise ValueError(f"max_exposures must be an integer >= 1, got {max_exposures!r}")
+        self.max_exposures = int(max_exposures)
+        self.rate_per_exposure_deg_s = _positive("rate_per_exposure_deg_s", rate_per_exposure_deg_s)
+        self.radius_k_sigma = _positive("radius_k_sigma", radius_k_sigma)
+        self.radius_min_px = _positive("radius_min_px", radius_min_px, allow_zero=True)
+        self.radius_max_px = _positive("radius_max_px", radius_max_px)
+        if self.radius_max_px < self.radius_min_px:
+            raise ValueError("radius_max_px must be >= radius_min_px")
+        if isinstance(min_stars_per_instant, bool) or int(min_stars_per_instant) != min_stars_per_instant or min_stars_per_instant < 2:
+            raise ValueError(f"min_stars_per_instant must be an integer >= 2, got {min_stars_per_instant!r}")
+        self.min_stars_per_instant = int(min_stars_per_instant)
+        self.min_matched_fraction = _positive("min_matched_fraction", min_matched_fraction, allow_zero=True)
+        if self.min_matched_fraction > 1:
+            raise ValueError(f"min_matched_fraction must be in [0, 1], got {min_matched_fraction}")
+        self.sigma_rad = self.centroid_sigma_px / camera.focal_length_px
+        expected = np.sqrt(2.0) * self.sigma_rad * RAD_TO_ARCSEC
+        self.max_residual_arcsec = (
+            3.0 * expected if max_residual_arcsec is None else _positive("max_residual_arcsec", max_residual_arcsec)
+        )
+        self.outlier_k_sigma = _positive("outlier_k_sigma", outlier_k_sigma)
+        self.innovation_gate = _positive("innovation_gate", innovation_gate)
+        self.shift_k_sigma = _positive("shift_k_sigma", shift_k_sigma, allow_zero=True)
+        self.accel_sigma_rad_s2 = _positive("accel_sigma_rad_s2", accel_sigma_rad_s2, allow_zero=True)
+        self.recovery_accel_sigma_rad_s2 = _positive("recovery_accel_sigma_rad_s2", recovery_accel_sigma_rad_s2, allow_zero=True)
+        self.gyro_sigma_rad_s = _positive("gyro_sigma_rad_s", gyro_sigma_rad_s, allow_zero=True)
+        self.max_rate_rad_s = float(np.radians(_positive("max_rate_deg_s", max_rate_deg_s)))
+        self.coast_max_s = _positive("coast_max_s", coast_max_s, allow_zero=True)
+        self.prior_sigma_rad = _positive("prior_sigma_rad", prior_sigma_rad)
+        self.identify_options = {"sigma_px": self.centroid_sigma_px, **(identify_options or {})}
+        self.reset()
+
+    # ------------------------------------------------------------------ public state
+    def reset(self) -> None:
+        """Forget everything: mode ``lost``, no motion state, no candidate, no frame history."""
+        self._mode = "lost"
+        self._state: MotionState | None = None
+        self._candidate: _Candidate | None = None
+        self._last_frame_time: float | None = None
+        self._frame_interval_s = self.frame_period_s
+
+    @property
+    def mode(self) -> str:
+        """Current mode: "lost", "acquire" or "track"."""
+        return self._mode
+
+    @property
+    def state(self) -> MotionState | None:
+        """Motion state of the last lock (kept while lost, for recovery), or None."""
+        return self._state
+
+    @property
+    def requested_n_exposures(self) -> int:
+        """Exposures the next frame should have: 1 while lost or acquiring, else the exposure plan's N.
+
+        ``N = min(1 + round(|ω| / rate_per_exposure_deg_s), N_sep)``, clipped to ``[1, max_exposures]``,
+        where ``N_sep`` keeps the spots of one star (travel ``|ω_⊥| T f_px`` over a frame, split in N)
+        ``2 · shift_k_sigma`` prediction σ apart. 1 until the acceleration has been estimated (right
+        after acquisition or recovery, without a gyro: one more single-exposure frame).
+        """
+        st = self._state
+        if self._mode != "track" or st is None or not st.alpha_known:
+            return 1
+        n_rate = 1 + int(np.round(np.degrees(np.linalg.norm(st.omega_body)) / self.rate_per_exposure_deg_s))
+        period = self._frame_interval_s
+        lag = 0.0 if self._last_frame_time is None else max(0.0, self._last_frame_time - st.t_s)
+        sigma = prediction_sigma_px(self.camera, st.cov_theta_rad2, period + lag, st.cov_omega, self._cov_alpha_total(st))
+        w_cam = self.camera.r_cam_to_body.T @ st.omega_body
+        travel_px = float(np.hypot(w_cam[0], w_cam[1])) * period * self.camera.focal_length_px
+        n_sep = n_rate if self.shift_k_sigma == 0 or sigma == 0 else int(travel_px / (2.0 * self.shift_k_sigma * sigma))
+        return int(np.clip(min(n_rate, n_sep), 1, self.max_exposures))
+
+    # ------------------------------------------------------------------ one frame
+    def process_frame(self, xy, intensity, exposure_times, frame_time, omega_body=None, q_body_prior=None) -> FrameResult:
+        """Run one frame of detections through the state machine.
+
+        Parameters
+        ----------
+        xy : array_like, shape (K, 2)
+            Detections (column, row), px: N spots per star in a multi-exposure frame, any order.
+        intensity : array_like, shape (K,) or None
+            Positive detection intensities (lost-in-space orders by them; None: ``xy`` is brightest first).
+        exposure_times : array_like, shape (N,)
+            Mid-exposure instants, s, strictly increasing.
+        frame_time : float
+            Time stamp of the frame (for the update rate, and of the gyro reading), s.
+        omega_body : array_like, shape (3,), optional
+            Gyro body rate at ``frame_time``, rad/s.
+        q_body_prior : array_like, shape (4,), optional
+            External attitude prior at ``frame_time`` (e.g. a filter's propagated estimate), used to
+            recover while lost.
+
+        Returns
+        -------
+        FrameResult
+        """
+        xy = np.empty((0, 2)) if np.size(xy) == 0 else as_float_array(xy, "xy", last_dim=2, ndim=2)
+        if intensity is not None:
+            intensity = np.empty(0) if np.size(intensity) == 0 else as_float_array(intensity, "intensity", ndim=1)
+            if len(intensity) != len(xy):
+                raise ValueError(f"intensity must have shape ({len(xy)},), got {intensity.shape}")
+            if np.any(intensity <= 0):
+                raise ValueError("intensity must be positive")
+        t_exp = np.atleast_1d(as_float_array(exposure_times, "exposure_times"))
+        if t_exp.ndim != 1 or len(t_exp) == 0:
+            raise ValueError(f"exposure_times must be a non-empty 1-D array, got shape {t_exp.shape}")
+        if np.any(np.diff(t_exp) <= 0):
+            raise ValueError("exposure_times must be strictly increasing")
+        t_frame = float(as_float_array(frame_time, "frame_time"))
+        gyro = None if omega_body is None else as_float_array(omega_body, "omega_body", last_dim=3, ndim=1)
+        prior = None if q_body_prior is None else quat_normalize(as_float_array(q_body_prior, "q_body_prior", 4, 1))
+
+        if self._last_frame_time is not None and t_frame <= self._last_frame_time:
+            self.reset()  # time went backwards: a new run, nothing of the old one is valid
+        if self._mode == "track":
+            att = self._track(xy, t_exp, self._state, gyro, t_frame)
+            if att.ok:
+                result = self._accept(att, xy, t_exp)
+            else:
+                self._mode = "lost"
+                result = self._result(att, xy, t_exp, status=f"lock lost: {att.status}")
+        elif self._mode == "acquire":
+            result = self._acquire(xy, intensity, t_exp, gyro, t_frame)
+        else:
+            result = self._lost(xy, intensity, t_exp, gyro, t_frame, prior)
+
+        if self._last_frame_time is None:
+            dt_frame = self.frame_period_s
+        else:
+            dt_frame = t_frame - self._last_frame_time
+            self._frame_interval_s = dt_frame
+        self._last_frame_time = t_frame
+        rate = len(result.samples) / dt_frame
+        return replace(result, update_rate_hz=float(rate), mode=self._mode)
+
+    # ------------------------------------------------------------------ modes
+    def _lost(self, xy, intensity, t_exp, gyro, t_frame, prior) -> FrameResult:
+        tried = []
+        latency = 0.0
+        st = self._state
+        if st is not None and 0 <= t_exp[-1] - st.t_s <= self.coast_max_s:
+            att = self._track(xy, t_exp, st, gyro, t_frame, self.recovery_accel_sigma_rad_s2**2)
+            latency += att.latency_ms
+            if att.ok:
+                return self._accept(att, xy, t_exp, status=f"recovered by prediction after {t_exp[0] - st.t_s:.3f} s")
+            tried.append(f"recovery failed ({att.status})")
+        if prior is not None:
+            w = np.zeros(3) if gyro is None else gyro
+            var_w = self.gyro_sigma_rad_s**2 if gyro is not None else self.max_rate_rad_s**2
+            meas = None if gyro is None else (t_frame, gyro, var_w * np.eye(3))
+            st = MotionState(t_frame, prior, self.prior_sigma_rad**2 * np.eye(3), w, var_w * np.eye(3), rate_meas=meas)
+            att = self._track(xy, t_exp, st, gyro, t_frame)
+            latency += att.latency_ms
+            if att.ok:
+                return self._accept(att, xy, t_exp, status="recovered from the attitude prior")
+            tried.append(f"prior failed ({att.status})")
+        if len(t_exp) != 1:
+            status = "; ".join(tried + [f"{len(t_exp)}-exposure frame: lost-in-space needs a single exposure"])
+            return FrameResult("lost", [], 0, len(xy), latency, 0.0, status, len(t_exp))
+        res = self._identify(xy, intensity)
+        if not res.success:
+            status = "; ".join(tried + [f"identification failed: {res.status}"])
+            return FrameResult("lost", [], 0, len(xy), latency, 0.0, status, 1, identify_latency_ms=res.latency_ms)
+        q_body, cov_body = self._camera_to_body(res)
+        self._candidate = _Candidate(float(t_exp[0]), q_body, cov_body, int(res.n_matched))
+        self._mode = "acquire"
+        status = "; ".join(tried + [f"identified {res.n_matched} stars ({res.residual_arcsec:.1f}\"), awaiting confirmation"])
+        return FrameResult(
+            "acquire", [], int(res.n_matched), len(xy), latency, 0.0, status, 1,
+            identify_latency_ms=res.latency_ms, residual_arcsec=float(res.residual_arcsec),
+        )
+
+    def _acquire(self, xy, intensity, t_exp, gyro, t_frame) -> FrameResult:
+        cand = self._candidate
+        dt = float(t_exp[0] - cand.t_s)
+        if not (0 < dt <= self.coast_max_s):
+            self._mode, self._candidate = "lost", None
+            return self._lost(xy, intensity, t_exp, gyro, t_frame, None)
+        if gyro is not None:
+            var_g = self.gyro_sigma_rad_s**2 * np.eye(3)
+            st = MotionState(cand.t_s, cand.q_body_to_icrs, cand.cov_theta_rad2, gyro, var_g, rate_meas=(t_frame, gyro, var_g))
+            att = self._track(xy, t_exp, st, gyro, t_frame)
+            if att.ok:
+                return self._accept(att, xy, t_exp, status="acquired: identification confirmed by tracking")
+            self._mode, self._candidate = "lost", None
+            status = f"acquisition not confirmed ({att.status})"
+            if len(t_exp) == 1:  # this frame may start a new acquisition
+                fallback = self._lost(xy, intensity, t_exp, gyro, t_frame, None)
+                return replace(fallback, status=f"{status}; {fallback.status}")
+            return self._result(att, xy, t_exp, status=status)
+        if len(t_exp) != 1:
+            self._mode, self._candidate = "lost", None
+            return FrameResult("lost", [], 0, len(xy), 0.0, 0.0, "acquisition without a gyro needs a single-exposure frame", len(t_exp))
+        res = self._identify(xy, intensity)
+        if not res.success:
+            self._mode, self._candidate = "lost", None
+            return FrameResult("lost", [], 0, len(xy), 0.0, 0.0, f"acquisition: identification failed: {res.status}", 1,
+                               identify_latency_ms=res.latency_ms)
+        q2, cov2 = self._camera_to_body(res)
+        rate = quat_to_rotvec(quat_multiply(quat_conjugate(cand.q_body_to_icrs), q2)) / dt
+        if np.linalg.norm(rate) > self.max_rate_rad_s:
+            self._candidate = _Candidate(float(t_exp[0]), q2, cov2, int(res.n_matched))
+            status = f"identifications disagree ({np.degrees(np.linalg.norm(rate)):.1f} °/s implied): new candidate"
+            return FrameResult("acquire", [], int(res.n_matched), len(xy), 0.0, 0.0, status, 1,
+                               identify_latency_ms=res.latency_ms, residual_arcsec=float(res.residual_arcsec))
+        # The mean rate over [t1, t2] is a rate measurement at the midpoint.
+        cov_m = (cand.cov_theta_rad2 + cov2) / dt**2
+        t_m = cand.t_s + dt / 2
+        cov_w = cov_m + self.accel_sigma_rad_s2**2 * (dt / 2) ** 2 * np.eye(3)
+        st = MotionState(cand.t_s, cand.q_body_to_icrs, cand.cov_theta_rad2, rate, cov_w, rate_meas=(t_m, rate, cov_m))
+        att = self._track(xy, t_exp, st, None, t_frame)
+        if att.ok:
+            out = self._accept(att, xy, t_exp, status=f"acquired: two identifications agree ({np.degrees(np.linalg.norm(rate)):.2f} °/s)")
+            return replace(out, identify_latency_ms=res.latency_ms)
+        self._mode, self._candidate = "lost", None
+        return self._result(att, xy, t_exp, status=f"acquisition not confirmed ({att.status})")
+
+    # ------------------------------------------------------------------ tracking
+    def _cov_alpha_total(self, st: MotionState) -> np.ndarray:
+        return st.cov_alpha + self.accel_sigma_rad_s2**2 * np.eye(3)
+
+    def _propagation(self, st: MotionState, gyro, t_frame):
+        """Rate at ``st.t_s``, acceleration and their covariances used to propagate ``st``."""
+        if gyro is None:
+            return st.omega_body, st.alpha_body, st.cov_omega, self._cov_alpha_total(st)
+        var_g = self.gyro_sigma_rad_s**2 * np.eye(3)
+        alpha, cov_a = st.alpha_body, st.cov_alpha
+        prev = st.rate_meas
+        if prev is not None and 0 < t_frame - prev[0] <= self.coast_max_s:
+            alpha = (gyro - prev[1]) / (t_frame - prev[0])
+            cov_a = (var_g + prev[2]) / (t_frame - prev[0]) ** 2
+        cov_a = cov_a + self.accel_sigma_rad_s2**2 * np.eye(3)
+        lever = st.t_s - t_frame
+        return gyro + alpha * lever, alpha, var_g + cov_a * lever**2, cov_a
+
+    def _track(self, xy, t_exp, st: MotionState, gyro, t_frame, extra_var_alpha: float = 0.0) -> _Attempt:
+        t0 = time.perf_counter()
+        omega, alpha, cov_w, cov_a = self._propagation(st, gyro, t_frame)
+        cov_a = cov_a + extra_var_alpha * np.eye(3)
+        sig_pred = prediction_sigma_px(self.camera, st.cov_theta_rad2, t_exp - st.t_s, cov_w, cov_a)
+        r = prediction_radius_px(self.centroid_sigma_px, sig_pred, self.radius_k_sigma, self.radius_min_px, self.radius_max_px)
+        pred = predict_star_positions(self.camera, self.catalog, st.q_body_to_icrs, t_exp, st.t_s, omega, alpha, margin_px=r)
+        idx = match_stars(pred.xy, xy, r, method=self.matcher)
+        latency = (time.perf_counter() - t0) * 1e3
+        n_pred = int(pred.on_detector.sum())
+        if n_pred == 0:
+            return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
+        inst = attitudes_per_instant(xy, idx, pred, self.camera, self.catalog, self.centroid_sigma_px,
+                                     self.min_stars_per_instant, self.outlier_k_sigma)
+        n_matched = int(np.sum(inst.assignment >= 0))
+        frac = n_matched / n_pred
+        ok_i = inst.ok
+        rms = float(np.sqrt(np.mean(inst.residual_rms_arcsec[ok_i] ** 2))) if ok_i.any() else float("inf")
+        skipped = tuple(int(i) for i in inst.skipped)
+        base = dict(n_matched=n_matched, n_predicted=n_pred, radius_px=r, latency_ms=latency, residual_arcsec=rms, skipped=skipped)
+        if not ok_i.any():
+            return _Attempt(False, f"no exposure instant with {self.min_stars_per_instant} matched stars ({n_matched}/{n_pred} matched)", [], **base)
+        if frac < self.min_matched_fraction:
+            return _Attempt(False, f"matched {n_matched}/{n_pred} predicted spots ({100 * frac:.0f} % < {100 * self.min_matched_fraction:.0f} %)", [], **base)
+        if rms > self.max_residual_arcsec:
+            return _Attempt(False, f"residual {rms:.1f}\" > {self.max_residual_arcsec:.1f}\"", [], **base)
+        # Innovation: solved vs predicted attitude at each solved instant.
+        sel = np.flatnonzero(ok_i)
+        delta = quat_to_rotvec(quat_multiply(quat_conjugate(pred.q_body_to_icrs[sel]), inst.q_body_to_icrs[sel]))
+        s = prediction_covariance(st.cov_theta_rad2, inst.times_s[sel] - st.t_s, cov_w, cov_a) + inst.covariance_rad2[sel]
+        nis = float(np.mean(np.einsum("ni,ni->n", delta, np.linalg.solve(s, delta[..., None])[..., 0])))
+        if nis > self.innovation_gate:
+            return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", [], **base)
+        samples = [
+            AttitudeSample(float(inst.times_s[i]), inst.q_body_to_icrs[i].copy(), inst.covariance_rad2[i].copy(), int(inst.n_stars[i]))
+            for i in sel
+        ]
+        new_state = self._update_state(st, samples, gyro, t_frame)
+        status = f"tracking {len(samples)}/{len(t_exp)} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
+        if skipped:
+            status += f", skipped instants {list(skipped)}"
+        return _Attempt(True, status, samples, state=new_state, **base)
+
+    def _update_state(self, st: MotionState, samples, gyro, t_frame) -> MotionState:
+        """New motion state from a tracked frame's samples (see the module docstring)."""
+        t = np.array([s.t_s for s in samples])
+        q = np.array([s.q_body_to_icrs for s in samples])
+        covs = np.array([s.covariance_rad2 for s in samples])
+        t_ref, q_ref, cov_ref = float(t[-1]), q[-1], covs[-1]
+        # A rate measurement (time, rate, covariance).
+        if gyro is not None:
+            meas = (t_frame, gyro, self.gyro_sigma_rad_s**2 * np.eye(3))
+        elif len(t) >= 3:
+            # Least-squares line θ(τ) = c + ω τ through the rotation vectors relative to the last instant:
+            # its slope is the rate at the mean time.
+            theta = quat_to_rotvec(quat_multiply(quat_conjugate(q_ref)[None], q))
+            tau = t - t_ref
+            sxx = float(np.sum((tau - tau.mean()) ** 2))
+            w_fit = ((tau - tau.mean()) @ (theta - theta.mean(axis=0))) / sxx
+            meas = (float(t.mean()), w_fit, covs.mean(axis=0) / sxx)
+        elif t_ref > st.t_s:
+            dt = t_ref - st.t_s
+            rotvec = quat_to_rotvec(quat_multiply(quat_conjugate(st.q_body_to_icrs), q_ref))
+            meas = (st.t_s + dt / 2, rotvec / dt, (st.cov_theta_rad2 + cov_ref) / dt**2)
+        else:
+            meas = None
+        if meas is None:
+            omega, alpha, cov_w, _ = self._propagation(st, None, t_frame)
+            lever = t_ref - st.t_s
+            return replace(st, t_s=t_ref, q_body_to_icrs=q_ref, cov_theta_rad2=cov_ref, omega_body=omega + alpha * lever)
+        t_m, w_m, cov_m = meas
+        prev = st.rate_meas
+        alpha_known = False
+        if prev is not None and 0.5 * self._frame_interval_s <= t_m - prev[0] <= self.coast_max_s:
+            dtm = t_m - prev[0]
+            alpha = (w_m - prev[1]) / dtm
+            cov_alpha = (cov_m + prev[2]) / dtm**2
+            alpha_known = True
+        elif prev is not None and 0 <= t_m - prev[0] < 0.5 * self._frame_interval_s:
+            # Too close to the previous measurement to difference: keep the earlier one and its estimate.
+            alpha, cov_alpha, alpha_known, meas = st.alpha_body, st.cov_alpha, st.alpha_known, prev
+        else:
+            alpha, cov_alpha = np.zeros(3), np.zeros((3, 3))
+        lever = t_ref - t_m
+        cov_w = cov_m + (cov_alpha + self.accel_sigma_rad_s2**2 * np.eye(3)) * lever**2
+        return MotionState(t_ref, q_ref, cov_ref, w_m + alpha * lever, cov_w, alpha, cov_alpha, meas, alpha_known)
+
+    # ------------------------------------------------------------------ helpers
+    def _identify(self, xy, intensity):
+        from startracker.identify import IdentificationResult, identify
+
+        if len(xy) < 3:
+            return IdentificationResult(False, np.full(len(xy), -1), np.array([1.0, 0, 0, 0]), 0, np.inf, 0.0,
+                                        "fewer than 3 detections", self.identify_method)
+        return identify(xy, self.camera, self.catalog, method=self.identify_method, intensities=intensity,
+                        **self.identify_options)
+
+    def _camera_to_body(self, res):
+        q_c2b = np.asarray(self.camera.q_cam_to_body)
+        q_body = quat_normalize(quat_multiply(res.q_cam_to_icrs, quat_conjugate(q_c2b)))
+        cov_cam = res.covariance_rad2
+        if cov_cam is None or not np.all(np.isfinite(cov_cam)):
+            s = max(res.residual_arcsec, 1.0) / RAD_TO_ARCSEC
+            cov_cam = s**2 * np.eye(3)
+        r = self.camera.r_cam_to_body
+        return q_body, r @ cov_cam @ r.T
+
+    def _accept(self, att: _Attempt, xy, t_exp, status=None) -> FrameResult:
+        self._state = att.state
+        self._candidate = None
+        self._mode = "track"
+        return self._result(att, xy, t_exp, status=status, samples=att.samples)
+
+    def _result(self, att: _Attempt, xy, t_exp, status=None, samples=None) -> FrameResult:
+        text = att.status if status is None else (status if not att.ok else f"{status}; {att.status}")
+        return FrameResult(
+            self._mode, list(samples or []), att.n_matched, len(xy), att.latency_ms, 0.0, text, len(t_exp),
+            att.n_predicted, att.radius_px, 0.0, att.residual_arcsec, att.skipped,
+        )

@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) scripts/demo_sky.py
+	$(PY) -m envs slew --out demo_output
 
 test: $(STAMP)
 	$(PY) -m pytest tests

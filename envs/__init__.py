@@ -7,6 +7,8 @@
 from gymnasium.envs.registration import register, registry
 
 ENV_IDS = ("startracker/AgileSlew-v0", "startracker/AttitudeHold-v0")
+# info entries measured on the wall clock of this machine: reported, never fed back, so not bit-for-bit repeatable
+WALL_CLOCK_INFO_KEYS = ("matching_latency_ms",)
 
 if ENV_IDS[0] not in registry:
     register(
@@ -23,4 +25,4 @@ if ENV_IDS[1] not in registry:
         max_episode_steps=None,
     )
 
-__all__ = ["ENV_IDS"]
+__all__ = ["ENV_IDS", "WALL_CLOCK_INFO_KEYS"]

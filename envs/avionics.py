@@ -278,6 +278,18 @@ class Avionics:
         )
         return list(res.samples)
 
+    # ------------------------------------------------------------------ pickling
+    def __getstate__(self):
+        # The sensor model holds a read-only mapping proxy (not picklable); it is a preset, rebuilt on load.
+        d = dict(self.__dict__)
+        d["sensor_model"] = self.sensor_model.name
+        return d
+
+    def __setstate__(self, d):
+        d = dict(d)
+        d["sensor_model"] = SensorModel.preset(d["sensor_model"])
+        self.__dict__.update(d)
+
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
         if self.ekf is None:

@@ -39,6 +39,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 from scipy.special import erf, ndtr
 
 from startracker.imaging import (
@@ -709,15 +710,42 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
     truth_xy = xy[idx]
     out_xy = truth_xy + err_xy
     inten_e = np.maximum(cap[idx] + z[:, 2] * np.sqrt(v_cap[idx]), 1e-3)
+    peak_e = peak[idx]
+    det_area = area[idx]
+    star, expo, kind = star[idx], expo[idx], kind[idx]
+    var_bd = var_b[idx]
+    # spots whose threshold regions touch are one component in the pixel path: merge them
+    if len(idx) > 1:
+        half_len = 0.5 * length[idx]
+        reach = np.sqrt(det_area / np.pi) + half_len
+        pairs = cKDTree(truth_xy).query_pairs(2.0 * float(reach.max()) + 1.0, output_type="ndarray")
+        if len(pairs):
+            gap = np.linalg.norm(truth_xy[pairs[:, 0]] - truth_xy[pairs[:, 1]], axis=1)
+            pairs = pairs[gap < reach[pairs[:, 0]] + reach[pairs[:, 1]] + 1.0]
+        if len(pairs):
+            k_det = len(idx)
+            graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(k_det, k_det))
+            n_grp, grp = connected_components(graph, directed=False)
+            w = inten_e
+            wsum = np.bincount(grp, w, n_grp)
+            out_xy = np.column_stack([np.bincount(grp, w * out_xy[:, 0], n_grp), np.bincount(grp, w * out_xy[:, 1], n_grp)]) / wsum[:, None]
+            lead = np.full(n_grp, -1)
+            order_w = np.argsort(w, kind="stable")
+            lead[grp[order_w]] = order_w  # the brightest member labels the merged detection
+            txy = truth_xy[lead]
+            inten_e = wsum
+            det_area = np.bincount(grp, det_area, n_grp)
+            peak_e = np.bincount(grp, peak_e, n_grp)
+            star, expo, kind, var_bd, truth_xy = star[lead], expo[lead], kind[lead], var_bd[lead], txy
     bg_e = bg.mean_e(truth_xy[:, 0], truth_xy[:, 1])
-    sat = (peak[idx] + bg_e) / g_dn + model.bias_dn >= model.saturation_dn
-    sigma_dn = np.sqrt(var_b[idx]) / g_dn
-    det_area = np.rint(area[idx]).astype(np.int64)
+    sat = (peak_e + bg_e) / g_dn + model.bias_dn >= model.saturation_dn
+    sigma_dn = np.sqrt(var_bd) / g_dn
+    det_area = np.maximum(np.rint(det_area), 1).astype(np.int64)
     parts = dict(
         xy=[out_xy], intensity=[inten_e / g_dn], area=[det_area], saturated=[sat],
-        peak=[np.minimum(peak[idx] / g_dn, model.saturation_dn - model.bias_dn)],
-        snr=[inten_e / g_dn / (sigma_dn * np.sqrt(det_area))], star=[star[idx]], exposure=[expo[idx]],
-        kind=[kind[idx]], truth_xy=[truth_xy],
+        peak=[np.minimum(peak_e / g_dn, model.saturation_dn - model.bias_dn)],
+        snr=[inten_e / g_dn / (sigma_dn * np.sqrt(det_area))], star=[star], exposure=[expo],
+        kind=[kind], truth_xy=[truth_xy],
     )
     if include_false:
         # hot pixels

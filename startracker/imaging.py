@@ -649,7 +649,7 @@ def _frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
     expos = [np.repeat(np.arange(n), m)]
     xys = [scene.xy_mean.reshape(-1, 2)]
     exp_e = [np.tile(pe_star * g, n)]
-    optical_paths = [np.moveaxis(scene.xy_path, 1, 2).reshape(n * m, -1, 2)]  # (N*M, S, 2)
+    optical_paths = [np.moveaxis(scene.xy_path, 1, 2).reshape(n * m, scene.xy_path.shape[1], 2)]  # (N*M, S, 2)
     optical_total = [np.tile(pe_star, n)]
     optical_source = [np.arange(n * m)]
     q = n * m

@@ -20,10 +20,12 @@ Modes (``StarTracker.mode``, and ``FrameResult.mode`` = the mode *after* the fra
     inside the radius of the prediction's uncertainty (:func:`startracker.track.prediction_radius_px`),
     grouped by instant into N Wahba attitudes (:func:`startracker.track.attitudes_per_instant`).
 
-Lock test (every tracking attempt): at least one instant solved, at least ``min_stars_per_instant``
-matched stars, matched fraction of the predicted on-detector spots >= ``min_matched_fraction``, RMS
-residual <= ``max_residual_arcsec``. Failing it drops the tracker to ``lost``: stray light or a frame of
-false objects loses the lock instead of producing a confident wrong attitude.
+Lock test (every tracking attempt): at least one instant solved with ``min_stars_per_instant`` stars;
+matched fraction of the predicted on-detector spots >= ``min_matched_fraction``; RMS residual <=
+``max_residual_arcsec``; neither the first nor the last instant nearly empty (the signature of a frame
+matched one exposure off); the solved attitudes within ``innovation_gate`` (χ²) of the prediction. Failing
+it drops the tracker to ``lost``: stray light, a frame of false objects or a broken motion model loses the
+lock instead of producing a confident wrong attitude.
 
 Exposure plan: while lost or acquiring a single exposure is requested (lost-in-space needs one spot per
 star); while tracking ``N = clip(1 + round(|ω| / rate_per_exposure_deg_s), 1, max_exposures)``, paper 000
@@ -561,6 +563,13 @@ class StarTracker:
             return _Attempt(False, f"matched {n_matched}/{n_pred} predicted spots ({100 * frac:.0f} % < {100 * self.min_matched_fraction:.0f} %)", [], **base)
         if rms > self.max_residual_arcsec:
             return _Attempt(False, f"residual {rms:.1f}\" > {self.max_residual_arcsec:.1f}\"", [], **base)
+        # A frame matched one exposure off leaves the first (prediction lagging) or last (leading) instant
+        # without stars while the others are full; a state already off by one exposure agrees with its own
+        # prediction, so only this test sees it.
+        n_st = inst.n_stars
+        if len(n_st) >= 2 and min(n_st[0], n_st[-1]) < 0.5 * np.median(n_st):
+            return _Attempt(False, f"first/last instant nearly empty ({n_st[0]}, {n_st[-1]} stars, median "
+                                   f"{np.median(n_st):.0f}): matched one exposure off", [], **base)
         # Innovation: solved vs predicted attitude at each solved instant.
         sel = np.flatnonzero(ok_i)
         delta = quat_to_rotvec(quat_multiply(quat_conjugate(pred.q_body_to_icrs[sel]), inst.q_body_to_icrs[sel]))

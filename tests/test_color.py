@@ -295,3 +295,76 @@ def test_fusion_bad_input():
         m = paper004_sensor_model()
         render_color_frame(scenes, replace(m, photometry=replace(m.photometry, color_term_per_bv=0.1)),
                            np.random.default_rng(0))
+
+
+# ------------------------------------------------------------------------ colour-aided identification
+from startracker.color_identify import build_color_database, identify_color  # noqa: E402
+from startracker.identify import identify  # noqa: E402
+from startracker.identify.simulation import simulate_frame  # noqa: E402
+
+
+def test_color_identification_at_least_as_accurate_as_monochrome():
+    """Same frames, same database: colour pruning never loses a correct identification, never mislabels,
+    keeps a minority of the geometric pair candidates, and rescues frames with few stars."""
+    cc = ColorCamera.paper004()
+    cam = cc.channel_camera("green")
+    cat = load_catalog(6.0)
+    cdb = build_color_database(cat, cam)
+    ratio_of = dict(zip(cdb.db.nav.hip.tolist(), cdb.star_ratio.tolist()))
+    rng = np.random.default_rng(7)
+    counts = {"mono": {"correct": 0, "mislabel": 0}, "color": {"correct": 0, "mislabel": 0}}
+    kept = []
+    for scen in (dict(sigma_px=0.5, n_false=2), dict(sigma_px=1.0, max_stars=5)):
+        for _ in range(25):
+            f = simulate_frame(cat, cam, quat_random(rng), rng, **scen)
+            cr = np.array([ratio_of.get(h, np.nan) if h >= 0 else rng.choice(cdb.star_ratio) for h in f.hip])
+            cr = cr + rng.normal(0, 0.1, len(cr))
+            mono = identify(f.xy, cam, cat, "pyramid", f.intensities, database=cdb.db, sigma_px=scen["sigma_px"])
+            col, pr = identify_color(f.xy, cam, cat, cr, 0.1, f.intensities, database=cdb,
+                                     sigma_px=scen["sigma_px"], return_pruning=True)
+            kept.append(pr.kept_fraction)
+            for name, r in (("mono", mono), ("color", col)):
+                true = f.hip >= 0
+                if r.success:
+                    bad = np.any((r.star_ids[true] != -1) & (r.star_ids[true] != f.hip[true]))
+                    counts[name]["mislabel"] += int(bad)
+                    counts[name]["correct"] += int(not bad and r.n_matched >= 3)
+    assert counts["color"]["correct"] >= counts["mono"]["correct"]
+    assert counts["color"]["mislabel"] <= counts["mono"]["mislabel"] == 0
+    assert counts["color"]["correct"] > counts["mono"]["correct"]  # the 5-star frames
+    assert np.median(kept) < 0.5
+
+
+def test_color_identification_end_to_end_from_pixels(color_frames):
+    """Fused detections and aperture colours of rendered 3CMOS frames identify with the right HIPs."""
+    cc, reg, model, frames = color_frames
+    cam = cc.channel_camera("green")
+    cat = load_catalog(7.5)
+    n_ok = 0
+    for scenes, images in frames:
+        fused = fuse_channel_centroids([extract_centroids(im) for im in images], reg,
+                                       gain_e_per_dn=model.gain_e_per_dn)
+        ratio, valid = color_ratio_from_fluxes(aperture_photometry(images, fused.xy, reg))
+        r = identify_color(fused.xy, cam, cat, np.where(valid, ratio, np.nan), 0.15,
+                           fused.total_intensity, sigma_px=0.5)
+        assert r.success, r.status
+        g = scenes[1]
+        d, j = cKDTree(g.xy_mean[0]).query(fused.xy)
+        labelled = r.star_ids >= 0
+        assert np.all(r.star_ids[labelled] == g.hip[j[labelled]])
+        n_ok += int(labelled.sum() >= 5)
+    assert n_ok == len(frames)
+
+
+def test_color_identification_bad_input():
+    cam = ColorCamera.paper004().channel_camera("green")
+    cat = load_catalog(6.0)
+    xy = np.array([[100.0, 200.0], [300.0, 400.0], [500.0, 600.0]])
+    with pytest.raises(ValueError, match="color_ratio"):
+        identify_color(xy, cam, cat, [0.1, 0.2])
+    with pytest.raises(ValueError, match="color_ratio"):
+        identify_color(xy, cam, cat, [0.1, np.inf, 0.2])
+    with pytest.raises(ValueError, match="color_sigma"):
+        identify_color(xy, cam, cat, [0.1, 0.2, 0.3], color_sigma=-1.0)
+    r = identify_color(xy[:2], cam, cat, [0.1, 0.2])
+    assert not r.success and "fewer than 3" in r.status

@@ -1,0 +1,276 @@
+"""Colour-aided lost-in-space identification for a 3CMOS star tracker.
+
+The pyramid of :mod:`startracker.identify.pyramid` with one more feature per star: the colour ratio
+``c = ln(e_red / e_blue)`` (:meth:`startracker.color.ChannelResponse.color_ratio`). The database stores
+each navigation star's expected ratio (from its catalog B−V), and every star-pair window of the k-vector
+search keeps only the catalog pairs whose two stars' expected ratios agree with the two detections'
+measured ratios within ``color_tol_sigmas · hypot(σ_measured, σ_model)`` (Enright & McVittie 2013; Niu,
+Wei & Li 2022, cited by paper 004 as the reason for the 3CMOS sensor). Fewer candidate pairs mean fewer
+triangles and hypotheses (speed); the expected number of wrong catalog triangles ``λ`` of the false-alarm
+rule is multiplied by the three detections' colour pass rates, so fewer confirming stars are required
+(robustness with few stars or loose position tolerances). Detections without a colour (NaN ratio) are
+not pruned. Verification is the common one of :mod:`startracker.identify.verification`.
+
+This module sits after :mod:`startracker.identify` in the import order (``color`` comes before
+``centroid`` and ``identify`` and cannot import them).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from startracker.attitude import RAD_TO_ARCSEC, solve_wahba_single
+from startracker.catalog import StarCatalog
+from startracker.color import DEFAULT_RESPONSE, ChannelResponse
+from startracker.identify import IdentificationResult, StarDatabase, build_database
+from startracker.identify.frame import Frame, IdentifyOptions, prepare_frame
+from startracker.identify.pyramid import PairCandidates, confirm_fourth, smart_triads, triangles
+from startracker.identify.verification import Match, best_of, triangle_false_rate, verify
+from startracker.optics import Camera
+from startracker.rotations import as_float_array
+
+__all__ = ["ColorDatabase", "build_color_database", "identify_color", "ColorPruning"]
+
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+@dataclass(frozen=True, eq=False)
+class ColorDatabase:
+    """An identification database plus each navigation star's expected colour ratio.
+
+    Attributes
+    ----------
+    db : StarDatabase
+    star_ratio : ndarray, shape (n_nav,)
+        Expected ``ln(e_red / e_blue)`` of every navigation star (catalog B−V through ``response``).
+    response : ChannelResponse
+    """
+
+    db: StarDatabase
+    star_ratio: np.ndarray
+    response: ChannelResponse
+
+    @property
+    def memory_bytes(self) -> int:
+        return int(self.db.memory_bytes + self.star_ratio.nbytes)
+
+
+def build_color_database(catalog: StarCatalog, camera: Camera, response: ChannelResponse = DEFAULT_RESPONSE,
+                         **build_kwargs) -> ColorDatabase:
+    """:func:`startracker.identify.build_database` (cached) plus the stars' expected colour ratios."""
+    if not isinstance(response, ChannelResponse):
+        raise TypeError(f"response must be a ChannelResponse, got {type(response).__name__}")
+    db = build_database(catalog, camera, **build_kwargs)
+    ratio = response.color_ratio(np.clip(db.nav.bv, -0.6, 6.0)).astype(np.float32)
+    return ColorDatabase(db=db, star_ratio=ratio, response=response)
+
+
+@dataclass
+class ColorPruning:
+    """What the colour pruning removed in one identification.
+
+    Attributes
+    ----------
+    pairs_geometric : int
+        Catalog pair candidates (both orientations) inside the angle windows that were looked up.
+    pairs_kept : int
+        Of those, the ones whose colours agree.
+    """
+
+    pairs_geometric: int = 0
+    pairs_kept: int = 0
+
+    @property
+    def kept_fraction(self) -> float:
+        return self.pairs_kept / self.pairs_geometric if self.pairs_geometric else 1.0
+
+
+class _ColorPairCandidates(PairCandidates):
+    """Pair candidates of the pyramid, pruned by the two detections' colour ratios."""
+
+    def __init__(self, pairs, frame: Frame, star_ratio, det_ratio, det_tol, stats: ColorPruning):
+        super().__init__(pairs, frame)
+        self.star_ratio = star_ratio
+        self.det_ratio = det_ratio
+        self.det_tol = det_tol
+        self.stats = stats
+
+    def _ok(self, ids, det):
+        if not np.isfinite(self.det_ratio[det]):
+            return np.ones(len(ids), dtype=bool)
+        return np.abs(self.star_ratio[ids] - self.det_ratio[det]) <= self.det_tol[det]
+
+    def fetch(self, keys):
+        ang, tol = self.frame.angle_rad, self.frame.pair_tol_rad
+        first, second = self.pairs.first, self.pairs.second
+        for key in keys:
+            if key in self.cache:
+                continue
+            p, q = key
+            start, stop = self.pairs.range_one(float(ang[p, q]), float(tol[p, q]))
+            f, s = first[start:stop], second[start:stop]
+            ids_p, ids_q = np.concatenate([f, s]), np.concatenate([s, f])
+            ok = self._ok(ids_p, p) & self._ok(ids_q, q)
+            self.stats.pairs_geometric += len(ids_p)
+            self.stats.pairs_kept += int(ok.sum())
+            self.cache[key] = (ids_p[ok], ids_q[ok])
+
+
+def _pass_rate(star_ratio, det_ratio, det_tol) -> np.ndarray:
+    """Fraction of navigation stars whose colour passes each detection's window, (n,)."""
+    srt = np.sort(star_ratio)
+    out = np.ones(len(det_ratio))
+    known = np.isfinite(det_ratio)
+    lo = np.searchsorted(srt, det_ratio[known] - det_tol[known], side="left")
+    hi = np.searchsorted(srt, det_ratio[known] + det_tol[known], side="right")
+    out[known] = np.maximum(hi - lo, 1) / len(srt)
+    return out
+
+
+def _pyramid_color(cdb: ColorDatabase, frame: Frame, opts: IdentifyOptions, det_ratio, det_tol,
+                   stats: ColorPruning) -> tuple[Match | None, str, int]:
+    """:func:`startracker.identify.pyramid.identify_pyramid` with colour-pruned pair windows and λ."""
+    db = cdb.db
+    n = frame.n
+    pool = min(n, opts.max_stars or 12)
+    order = np.arange(min(n, max(pool, 4)))
+    cands = _ColorPairCandidates(db.pairs, frame, cdb.star_ratio, det_ratio, det_tol, stats)
+    rate = _pass_rate(cdb.star_ratio, det_ratio, det_tol)
+    n_stars = float(db.n_stars)
+    n_hyp = 0
+    ambiguous = False
+    for t, (i, j, k) in enumerate(smart_triads(pool)):
+        if t >= opts.max_triads:
+            break
+        cands.fetch([(i, j), (i, k), (j, k)])
+        c_ij, c_ik, c_jk = cands.count(i, j), cands.count(i, k), cands.count(j, k)
+        if c_ij >= c_ik and c_ij >= c_jk:
+            i, j, k = k, i, j
+        elif c_ik >= c_jk:
+            i, j, k = j, i, k
+        hyp = triangles(db, frame, cands, i, j, k)
+        if len(hyp) == 0:
+            continue
+        rest = np.delete(order, (i, j, k))
+        ok, rot = confirm_fourth(db, frame, (i, j, k), hyp, rest)
+        if n > 3:
+            hyp, rot = hyp[ok], rot[ok]
+        if len(hyp) == 0:
+            continue
+        lam = triangle_false_rate(frame, i, j, k, n_stars, db.clumping3) * rate[i] * rate[j] * rate[k]
+        matches = []
+        for h in range(len(hyp)):
+            n_hyp += 1
+            m = verify(db, frame, np.array([i, j, k]), hyp[h], lam, opts.false_alarm, rot=rot[h])
+            if m is not None:
+                matches.append(m)
+        best, status = best_of(matches, frame.match_tol_rad)
+        if best is not None:
+            return best, "ok", n_hyp
+        ambiguous |= status.startswith("ambiguous")
+    if ambiguous:
+        return None, "ambiguous: two different attitudes verified", n_hyp
+    return None, "no triad was confirmed and verified", n_hyp
+
+
+def identify_color(xy, camera: Camera, catalog: StarCatalog, color_ratio, color_sigma=0.1, intensities=None,
+                   database: ColorDatabase | None = None, *, color_model_sigma: float = 0.1,
+                   color_tol_sigmas: float = 3.0, return_pruning: bool = False, **options):
+    """Lost-in-space identification with the colour ratio as an extra feature (pyramid).
+
+    Parameters
+    ----------
+    xy : array_like, shape (K, 2)
+        Detections (fused, in the green channel's frame), px; brightest first when ``intensities`` is None.
+    camera : Camera
+        The camera of ``xy`` (``ColorCamera.channel_camera("green")``).
+    catalog : StarCatalog
+    color_ratio : array_like, shape (K,)
+        Measured ``ln(I_red / I_blue)`` per detection; NaN where unknown (not pruned).
+    color_sigma : float or array_like, shape (K,)
+        1σ of each measured ratio (>= 0).
+    intensities : array_like, shape (K,), optional
+        As :func:`startracker.identify.identify`.
+    database : ColorDatabase, optional
+        From :func:`build_color_database`; built (and cached) by default.
+    color_model_sigma : float
+        1σ disagreement between a star's true ratio and the one predicted from its catalog B−V (B−V
+        errors, non-Planck spectra), added in quadrature.
+    color_tol_sigmas : float
+        Half-width of the colour window in combined σ (> 0).
+    return_pruning : bool
+        Also return a :class:`ColorPruning`.
+    **options
+        :class:`startracker.identify.frame.IdentifyOptions` (``sigma_px``, ``false_alarm``, ...).
+
+    Returns
+    -------
+    IdentificationResult
+        ``method = "pyramid+color"``; failure is a status, never an exception.
+    ColorPruning
+        Only with ``return_pruning``.
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a Camera, got {type(camera).__name__}")
+    if not isinstance(catalog, StarCatalog):
+        raise TypeError(f"catalog must be a StarCatalog, got {type(catalog).__name__}")
+    opts = IdentifyOptions.from_kwargs(options)
+    xy_arr = as_float_array(xy, "xy")
+    if xy_arr.ndim != 2 or xy_arr.shape[1] != 2:
+        raise ValueError(f"xy must have shape (K, 2), got {xy_arr.shape}")
+    k = len(xy_arr)
+    ratio = np.asarray(color_ratio, dtype=np.float64)
+    if ratio.shape != (k,):
+        raise ValueError(f"color_ratio must have shape ({k},) to match xy, got {ratio.shape}")
+    if np.any(np.isinf(ratio)):
+        raise ValueError("color_ratio must be finite or NaN (unknown), got inf")
+    sig = np.broadcast_to(np.asarray(color_sigma, dtype=np.float64), (k,)) if np.ndim(color_sigma) == 0 else \
+        np.asarray(color_sigma, dtype=np.float64)
+    if sig.shape != (k,) or not np.all(np.isfinite(sig)) or np.any(sig < 0):
+        raise ValueError(f"color_sigma must be a finite scalar or ({k},) array >= 0")
+    for name, v in (("color_model_sigma", color_model_sigma), ("color_tol_sigmas", color_tol_sigmas)):
+        if not (np.isfinite(v) and v >= 0) or (name == "color_tol_sigmas" and v == 0):
+            raise ValueError(f"{name} must be finite and {'> 0' if name == 'color_tol_sigmas' else '>= 0'}, got {v}")
+    if database is None:
+        database = build_color_database(catalog, camera)
+    elif not isinstance(database, ColorDatabase):
+        raise TypeError(f"database must be a ColorDatabase, got {type(database).__name__}")
+    if database.db.camera != camera:
+        raise ValueError("database was built for another camera")
+    stats = ColorPruning()
+    t0 = time.perf_counter()
+    frame = prepare_frame(xy_arr, camera, intensities, opts)
+    star_ids = np.full(k, -1, dtype=np.int64)
+    det_ratio = ratio[frame.index]
+    det_tol = color_tol_sigmas * np.hypot(sig[frame.index], color_model_sigma)
+
+    def done(result):
+        return (result, stats) if return_pruning else result
+
+    def failure(status, n_req=0, n_hyp=0):
+        return done(IdentificationResult(
+            success=False, star_ids=star_ids, q_cam_to_icrs=_IDENTITY.copy(), n_matched=0,
+            residual_arcsec=float("inf"), latency_ms=(time.perf_counter() - t0) * 1e3, status=status,
+            method="pyramid+color", n_required=n_req, n_hypotheses=n_hyp, covariance_rad2=np.diag([np.inf] * 3)))
+
+    db = database.db
+    if frame.n < 3:
+        return failure("fewer than 3 usable detections")
+    if len(db.pairs) == 0 or db.mean_stars_per_fov < 1.0:
+        return failure(f"catalog too sparse for the field of view ({db.mean_stars_per_fov:.2f} stars per frame)")
+    match, status, n_hyp = _pyramid_color(database, frame, opts, det_ratio, det_tol, stats)
+    if match is None:
+        return failure(status, n_hyp=n_hyp)
+    sol = solve_wahba_single(frame.v[match.det], db.nav.vectors[match.nav], sigma_rad=frame.sigma_rad)
+    if not sol.success or sol.residual_rms_arcsec > frame.match_tol_rad * RAD_TO_ARCSEC:
+        return failure(f"final attitude rejected: {sol.status}", match.n_required, n_hyp)
+    star_ids[frame.index[match.det]] = db.nav.hip[match.nav]
+    return done(IdentificationResult(
+        success=True, star_ids=star_ids, q_cam_to_icrs=sol.q_meas_to_ref, n_matched=int(match.n_matched),
+        residual_arcsec=float(sol.residual_rms_arcsec), latency_ms=(time.perf_counter() - t0) * 1e3, status="ok",
+        method="pyramid+color", n_required=int(match.n_required), n_hypotheses=int(n_hyp),
+        covariance_rad2=sol.covariance_rad2))
+

@@ -1,0 +1,248 @@
+"""The StarTracker state machine on simulated slews: acquisition, N attitudes per frame, loss and recovery,
+the 20 °/s closed loop of paper 000 (≥ 200 Hz with N = 21), and no confident wrong attitude from false objects."""
+
+import numpy as np
+import pytest
+
+from startracker.catalog import load_catalog, select_navigation_stars
+from startracker.optics import camera_preset
+from startracker.rotations import (
+    quat_conjugate,
+    quat_from_rotvec,
+    quat_integrate,
+    quat_multiply,
+    quat_random,
+    quat_to_rotvec,
+)
+from startracker.sensor import AttitudeSample, FrameResult, MotionState, StarTracker
+from startracker.track import synthetic_frame
+
+FRAME_S = 0.1
+SIGMA_PX = 0.3
+
+
+@pytest.fixture(scope="module")
+def nav():
+    # Navigation stars: V <= 6, close doubles (blended into one spot) removed.
+    return select_navigation_stars(load_catalog(6.0), min_separation_rad=np.radians(0.1))
+
+
+@pytest.fixture(scope="module")
+def cam():
+    return camera_preset("paper000", q_cam_to_body=quat_from_rotvec([0.2, -0.1, 0.3]))
+
+
+class Slew:
+    """Truth: q(t) = q0 ⊗ exp(ω0 t + α t²/2) about a fixed body axis (exact for a fixed axis)."""
+
+    def __init__(self, rng, rate_deg_s, alpha_rad_s2=0.0, axis=(0.6, 0.8, 0.0)):
+        self.q0 = quat_random(rng)
+        ax = np.asarray(axis, float) / np.linalg.norm(axis)
+        self.w0 = np.radians(rate_deg_s) * ax
+        self.alpha = alpha_rad_s2 * ax
+
+    def q(self, t):
+        return quat_integrate(self.q0, self.w0, t, self.alpha)
+
+    def rate(self, t):
+        return self.w0 + self.alpha * t
+
+
+def frame(cam, nav, slew, k, n, rng, n_false=10, p_detect=0.95, frame_s=FRAME_S):
+    """Frame k (starting at k·T) with n exposures spread over the frame, mid-exposure stamps."""
+    times = k * frame_s + (np.arange(n) + 0.5) * frame_s / n
+    fr = synthetic_frame(cam, nav, slew.q0, slew.w0, times, rng, alpha_body=slew.alpha, sigma_px=SIGMA_PX,
+                         n_false=n_false, p_detect=p_detect)
+    return fr, times, (k + 1) * frame_s
+
+
+def nees(sample: AttitudeSample, q_true):
+    e = quat_to_rotvec(quat_multiply(quat_conjugate(sample.q_body_to_icrs), q_true))
+    return float(e @ np.linalg.solve(sample.covariance_rad2, e))
+
+
+def run(st, cam, nav, slew, frames, rng, gyro=False, overrides=None):
+    """Drive the tracker; ``overrides[k]`` replaces frame k's detections (xy, intensity)."""
+    log = []
+    for k in frames:
+        n = st.requested_n_exposures
+        fr, times, t_frame = frame(cam, nav, slew, k, n, rng)
+        xy, inten = fr.xy, fr.intensity
+        if overrides and k in overrides:
+            xy, inten = overrides[k](fr)
+        w = slew.rate(t_frame) + rng.normal(0, 1e-4, 3) if gyro else None
+        res = st.process_frame(xy, inten, times, t_frame, omega_body=w)
+        log.append((k, n, times, res))
+    return log
+
+
+def stray_light(rng):
+    def make(fr):
+        xy = rng.uniform(0, 2048, (400, 2))
+        return xy, rng.uniform(1.0, 50.0, 400)
+
+    return make
+
+
+def test_state_machine_lost_acquire_track_forced_loss_lost_track(cam, nav):
+    rng = np.random.default_rng(21)
+    slew = Slew(rng, 20.0)
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX)
+    assert st.mode == "lost" and st.requested_n_exposures == 1
+    log = run(st, cam, nav, slew, range(8), rng, overrides={5: stray_light(rng)})
+    modes = [r.mode for *_, r in log]
+    assert modes == ["acquire", "track", "track", "track", "track", "lost", "track", "track"]
+    # No sample before confirmation; none from the stray-light frame.
+    assert log[0][3].samples == [] and log[5][3].samples == []
+    assert "lock lost" in log[5][3].status
+    assert "recovered" in log[6][3].status
+    # Single exposures while lost / acquiring / estimating the acceleration, then the plan's N, which is
+    # capped by the prediction uncertainty (one-exposure spacing >= 8 σ_pred) before it reaches 21.
+    ns = [n for _, n, _, _ in log]
+    assert ns[:3] == [1, 1, 1] and 10 <= ns[3] <= 21 and ns[4] == 21 and ns[6] == 1 and ns[7] > 1
+    assert len(log[4][3].samples) == 21
+    for k, n, times, res in log:
+        for s in res.samples:
+            assert nees(s, slew.q(s.t_s)) < 25.0  # χ²(3): 99.998 %
+    # After a long outage (2.2 s, beyond coast_max_s) the multi-exposure frame cannot be predicted: lock
+    # lost, then a single exposure is identified again: lost -> acquire -> track.
+    log2 = run(st, cam, nav, slew, [30, 31, 32, 33], rng)
+    assert [r.mode for *_, r in log2] == ["lost", "acquire", "track", "track"]
+    assert [n for _, n, _, _ in log2][1:3] == [1, 1] and log2[0][1] > 1 and log2[1][3].samples == []
+    st.reset()
+    assert st.mode == "lost" and st.state is None and st.requested_n_exposures == 1
+
+
+def test_closed_loop_20deg_per_s_10hz_never_drops_lock_and_reaches_210hz(cam, nav):
+    rng = np.random.default_rng(22)
+    slew = Slew(rng, 20.0)
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX, matcher="dkvlut")
+    log = run(st, cam, nav, slew, range(40), rng)
+    modes = [r.mode for *_, r in log]
+    assert modes[0] == "acquire" and all(m == "track" for m in modes[1:])
+    full = [(n, times, r) for _, n, times, r in log if n == 21]
+    assert len(full) >= 35
+    all_nees = []
+    for n, times, r in full:
+        assert isinstance(r, FrameResult)
+        assert len(r.samples) == 21 and r.update_rate_hz == pytest.approx(210.0)
+        assert [s.t_s for s in r.samples] == times.tolist()  # each sample carries its exposure instant
+        assert r.n_matched > 0.8 * r.n_predicted and r.matching_latency_ms > 0.0 and r.n_exposures == 21
+        all_nees += [nees(s, slew.q(s.t_s)) for s in r.samples]
+    all_nees = np.array(all_nees)
+    # Covariances consistent with the truth: χ²(3) has mean 3.
+    assert 2.4 < all_nees.mean() < 3.6
+    assert np.mean(all_nees < 7.81) > 0.9
+
+
+def test_gyro_aided_acquisition_and_accelerating_slew(cam, nav):
+    rng = np.random.default_rng(23)
+    slew = Slew(rng, 5.0, alpha_rad_s2=0.1)  # 5 °/s -> 22 °/s over 3 s
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX)
+    log = run(st, cam, nav, slew, range(30), rng, gyro=True)
+    modes = [r.mode for *_, r in log]
+    assert modes[0] == "acquire" and all(m == "track" for m in modes[1:])
+    assert "confirmed by tracking" in log[1][3].status
+    ns = [n for _, n, _, _ in log]
+    assert ns[3] < ns[15] < ns[-1] == 21  # the plan follows the rate
+    vals = [nees(s, slew.q(s.t_s)) for *_, r in log for s in r.samples]
+    assert len(vals) > 300 and np.mean(vals) < 3.6 and max(vals) < 30.0
+
+
+def test_frames_of_false_objects_never_give_an_attitude(cam, nav):
+    rng = np.random.default_rng(24)
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX)
+    for k in range(12):
+        n = int(rng.integers(20, 400))
+        res = st.process_frame(rng.uniform(0, 2048, (n, 2)), rng.uniform(1, 100, n), [k * 0.1 + 0.05], k * 0.1 + 0.1)
+        assert res.samples == [] and res.mode in ("lost", "acquire")
+    # Empty frames as well.
+    res = st.process_frame(np.empty((0, 2)), np.empty(0), [2.05], 2.1)
+    assert res.mode == "lost" and res.samples == [] and res.n_detections == 0
+
+
+def test_heavy_false_objects_while_tracking_stay_consistent(cam, nav):
+    rng = np.random.default_rng(25)
+    slew = Slew(rng, 15.0)
+
+    def clutter(fr):
+        xy = np.concatenate([fr.xy, rng.uniform(0, 2048, (3000, 2))])
+        return xy, np.concatenate([fr.intensity, rng.uniform(0.1, 5.0, 3000)])
+
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX)
+    log = run(st, cam, nav, slew, range(10), rng, overrides={k: clutter for k in range(4, 10)})
+    assert all(r.mode == "track" for *_, r in log[1:])
+    vals = [nees(s, slew.q(s.t_s)) for *_, r in log[4:] for s in r.samples]
+    assert len(vals) > 60 and np.mean(vals) < 4.0 and max(vals) < 30.0
+
+
+def test_state_off_by_one_exposure_is_refused(cam, nav):
+    # A motion state lagging by exactly one exposure interval agrees with its own prediction (every spot
+    # of instant n-1 taken for instant n): the empty first instant gives it away, never a wrong attitude.
+    rng = np.random.default_rng(26)
+    slew = Slew(rng, 20.0)
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX)
+    log = run(st, cam, nav, slew, range(5), rng)
+    assert log[-1][3].mode == "track" and st.requested_n_exposures == 21
+    s = st.state
+    lag = FRAME_S / 21
+    st._state = MotionState(
+        s.t_s, slew.q(s.t_s - lag), s.cov_theta_rad2, s.omega_body, s.cov_omega, s.alpha_body, s.cov_alpha,
+        s.rate_meas, s.alpha_known,
+    )
+    fr, times, t_frame = frame(cam, nav, slew, 5, 21, rng)
+    res = st.process_frame(fr.xy, fr.intensity, times, t_frame)
+    assert res.mode == "lost" and res.samples == []
+    assert "one exposure off" in res.status
+
+
+def test_recovery_from_an_attitude_prior(cam, nav):
+    rng = np.random.default_rng(27)
+    slew = Slew(rng, 10.0)
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX, prior_sigma_rad=np.radians(100 / 3600))
+    fr, times, t_frame = frame(cam, nav, slew, 3, 11, rng)
+    q_prior = quat_multiply(slew.q(t_frame), quat_from_rotvec(np.radians([30, -40, 60]) / 3600))
+    res = st.process_frame(fr.xy, fr.intensity, times, t_frame, omega_body=slew.rate(t_frame), q_body_prior=q_prior)
+    assert res.mode == "track" and len(res.samples) == 11 and "prior" in res.status
+    assert max(nees(s, slew.q(s.t_s)) for s in res.samples) < 25.0
+
+
+@pytest.mark.parametrize("rate_deg_s,expected_n", [(0.2, 1), (5.0, 6), (12.0, 13), (20.0, 21), (28.0, 21)])
+def test_exposure_plan_follows_the_rate(cam, nav, rate_deg_s, expected_n):
+    rng = np.random.default_rng(28)
+    slew = Slew(rng, rate_deg_s)
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX)
+    run(st, cam, nav, slew, range(6), rng)
+    assert st.mode == "track" and st.requested_n_exposures == expected_n
+
+
+@pytest.mark.parametrize("matcher", ["brute", "kdtree"])
+def test_other_matchers_track_the_same(cam, nav, matcher):
+    rng_a, rng_b = np.random.default_rng(29), np.random.default_rng(29)
+    slew = Slew(np.random.default_rng(30), 12.0)
+    a = run(StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX), cam, nav, slew, range(5), rng_a)
+    b = run(StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX, matcher=matcher), cam, nav, slew, range(5), rng_b)
+    for (_, _, _, ra), (_, _, _, rb) in zip(a, b):
+        assert ra.mode == rb.mode and ra.n_matched == rb.n_matched
+        for sa, sb in zip(ra.samples, rb.samples):
+            np.testing.assert_allclose(sa.q_body_to_icrs, sb.q_body_to_icrs, atol=1e-12)
+
+
+def test_bad_input(cam, nav):
+    st = StarTracker(cam, nav)
+    with pytest.raises(ValueError, match="xy"):
+        st.process_frame([[np.nan, 1.0]], None, [0.0], 0.1)
+    with pytest.raises(ValueError, match="intensity"):
+        st.process_frame([[1.0, 1.0]], [1.0, 2.0], [0.0], 0.1)
+    with pytest.raises(ValueError, match="exposure_times"):
+        st.process_frame([[1.0, 1.0]], None, [0.1, 0.05], 0.1)
+    with pytest.raises(ValueError, match="omega_body"):
+        st.process_frame([[1.0, 1.0]], None, [0.0], 0.1, omega_body=[1.0, 2.0])
+    with pytest.raises(ValueError, match="matcher"):
+        StarTracker(cam, nav, matcher="grid")
+    with pytest.raises(ValueError, match="identify_method"):
+        StarTracker(cam, nav, identify_method="magic")
+    with pytest.raises(ValueError, match="centroid_sigma_px"):
+        StarTracker(cam, nav, centroid_sigma_px=-1.0)
+    with pytest.raises(TypeError, match="camera"):
+        StarTracker("paper000", nav)

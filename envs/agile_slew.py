@@ -7,6 +7,7 @@ import gymnasium as gym
 from gymnasium import spaces
 
 from envs.avionics import Avionics, AvionicsConfig, TRACKER_MODES
+from envs.faults import Fault, FaultSchedule, random_fault_schedule
 from envs.spacecraft import Spacecraft
 from startracker.rotations import (
     quat_angle_between,
@@ -109,6 +110,8 @@ class AgileSlewEnv(gym.Env):
     | ``max_episode_s`` | 120 | time limit, s |
     | ``disturbance_torque_Nm`` | 0 (slew), 1e-3 (hold) | constant inertial disturbance torque magnitude, N m |
     | ``w_pointing``, ``w_effort``, ``w_settle`` | 1, 0.01, 1 | reward weights |
+    | ``faults`` | () | fault schedule: ``envs.faults.Fault`` objects or dicts ``{kind, t_start_s, duration_s, severity}`` |
+    | ``random_faults_per_min`` | 0 | random faults (Poisson) drawn at each reset, for soak runs |
     | ``render_mode`` | None | ``"rgb_array"``: the last star image with detections marked |
 
     ## Version History
@@ -146,6 +149,8 @@ class AgileSlewEnv(gym.Env):
         w_pointing: float = 1.0,
         w_effort: float = 0.01,
         w_settle: float = 1.0,
+        faults=None,
+        random_faults_per_min: float = 0.0,
         render_mode: str | None = None,
     ):
         if task not in ("slew", "hold"):
@@ -168,6 +173,10 @@ class AgileSlewEnv(gym.Env):
         for name, value in (("w_pointing", w_pointing), ("w_effort", w_effort), ("w_settle", w_settle)):
             if not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be >= 0, got {value!r}")
+        self.fault_list = tuple(Fault.from_dict(f) for f in (faults or ()))
+        if not np.isfinite(random_faults_per_min) or random_faults_per_min < 0:
+            raise ValueError(f"random_faults_per_min must be >= 0, got {random_faults_per_min!r}")
+        self.random_faults_per_min = float(random_faults_per_min)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         if disturbance_torque_Nm is None:
@@ -267,7 +276,12 @@ class AgileSlewEnv(gym.Env):
             self._disturbance_world = np.zeros(3)
         self.spacecraft.set_external_torque_world(self._disturbance_world)
         self._settled_s = 0.0
-        self.avionics.reset(self.spacecraft, rng)
+        faults = list(self.fault_list)
+        if "faults" in options:
+            faults = [Fault.from_dict(f) for f in options["faults"]]
+        if self.random_faults_per_min > 0:
+            faults += list(random_fault_schedule(rng, self.max_episode_s, self.random_faults_per_min).faults)
+        self.avionics.reset(self.spacecraft, rng, FaultSchedule(faults))
         obs = self._observation()
         info = self._info(reward_terms=(0.0, 0.0, 0.0))
         return obs, info
@@ -341,6 +355,11 @@ class AgileSlewEnv(gym.Env):
             "exposures_per_frame": stats["exposures_per_frame"],
             "n_attitude_samples": stats["n_attitude_samples"],
             "lost_lock_events": stats["lost_lock_events"],
+            "faults_active": list(stats["faults_active"]),
+            "n_wrong_samples": stats["n_wrong_samples"],
+            "n_wrong_samples_total": self.avionics.n_wrong_samples_total,
+            "reacquisition_times_s": self.avionics.reacquisition_times_s,
+            "attitude_sigma_arcsec": float(np.degrees(min(est.attitude_sigma_rad, np.pi)) * 3600.0),
             "reward_pointing": reward_terms[0],
             "reward_effort": reward_terms[1],
             "reward_settle": reward_terms[2],

@@ -28,8 +28,18 @@ from startracker.filter import AttitudeEKF
 from startracker.imaging import SensorModel, render_frame
 from startracker.imu import Gyro, gyro_preset, GYRO_GRADES
 from startracker.optics import camera_preset, CAMERA_PRESETS
-from startracker.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
-from startracker.scene import ExposurePlan, compute_scene
+from startracker.rotations import (
+    quat_angle_between,
+    quat_conjugate,
+    quat_integrate,
+    quat_interpolate,
+    quat_multiply,
+    quat_rotate,
+    quat_to_rotvec,
+)
+from startracker.scene import BrightBody, ExposurePlan, compute_scene
+
+from envs.faults import FaultSchedule
 from startracker.sensor import StarTracker
 
 __all__ = ["Avionics", "AvionicsConfig", "Estimate", "TRACKER_MODES"]
@@ -138,10 +148,19 @@ class Avionics:
             n_attitude_samples=0,
             lost_lock_events=0,
             frame_latencies_ms=[],
+            n_wrong_samples=0,
+            faults_active=[],
         )
 
-    def reset(self, spacecraft, rng: np.random.Generator) -> None:
+    def reset(self, spacecraft, rng: np.random.Generator, faults: FaultSchedule | None = None) -> None:
         """New episode: fresh gyro errors, lost tracker, no estimate; then one single-exposure frame."""
+        self.faults = faults if faults is not None else FaultSchedule()
+        self._n_wrong = 0
+        self._n_samples_total = 0
+        self._rejected_frames = 0
+        self._filter_resets = 0
+        self._t_lock_lost = None
+        self._reacquisition_s: list[float] = []
         self.gyro = Gyro(self.gyro_spec, rng)
         self.tracker.reset()
         self.tracker_mode = "lost"
@@ -155,8 +174,6 @@ class Avionics:
         # The first frame is exposed while the spacecraft sits at its initial attitude (at rest or drifting slowly):
         # the truth over it comes from integrating the initial rate, without stepping the episode's clock.
         w = spacecraft.omega_body
-        from startracker.rotations import quat_integrate
-
         t_pre = np.linspace(t - self.config.frame_period_s, t, 11)
         q_pre = quat_integrate(spacecraft.q_body_to_world, w, t_pre - t)
         samples = self._run_frame(t_pre[0], (t_pre, q_pre), rng)
@@ -195,6 +212,8 @@ class Avionics:
         dq = quat_multiply(quat_conjugate(quats[:-1]), quats[1:])
         omega_avg = quat_to_rotvec(dq) / np.diff(times)[:, None]
         omega_meas = self.gyro.measure(omega_avg, rng)
+        if self.faults:
+            omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
         self._omega_gyro = omega_meas[-1].copy()
 
         samples = []
@@ -212,6 +231,8 @@ class Avionics:
         stats["n_attitude_samples"] = len(samples)
         stats["update_rate_hz"] = len(samples) / duration_s
         stats["lost_lock_events"] = self._lost_events
+        stats["n_wrong_samples"] = self._count_wrong(samples, times, quats)
+        stats["faults_active"] = self.faults.active_kinds(t0, times[-1]) if self.faults else []
 
         if self.ekf is None:
             if samples:
@@ -238,11 +259,56 @@ class Avionics:
             qm, tm, cm = qm[keep], np.maximum(tm[keep], self.ekf.t_s), cm[keep]
         else:
             qm, tm, cm = np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3))
-        self.ekf.process(wg, tg, qm, tm, cm)
+        accepted = self.ekf.process(wg, tg, qm, tm, cm)
+        # Persistent innovation: the tracker keeps reporting attitudes the filter gates out (a gyro bias jump the
+        # filter does not believe). After three such frames in a row, restart from the tracker, keep the bias
+        # estimate, and open its covariance so the filter can learn the new bias.
+        if len(accepted) and self.tracker_mode == "track":
+            self._rejected_frames = 0 if accepted.any() else self._rejected_frames + 1
+            if self._rejected_frames >= 3:
+                bias = self.ekf.bias_rad_s.copy()
+                t_end = self.ekf.t_s
+                last = samples[-1]
+                self._init_ekf(last, last.t_s)
+                self.ekf.bias_rad_s = bias
+                self.ekf.ekf.P[3:, 3:] = np.eye(3) * max(np.radians(1.0) ** 2, float(np.max(np.diag(self.ekf.ekf.P[3:, 3:]))))
+                if t_end > self.ekf.t_s:
+                    self.ekf.propagate(self._omega_gyro, t_end - self.ekf.t_s)
+                self._rejected_frames = 0
+                self._filter_resets += 1
+
+    def _count_wrong(self, samples, times, quats) -> int:
+        """Attitude samples reported valid whose true error exceeds max(5σ, 20″): confident wrong answers."""
+        if not samples:
+            return 0
+        t = np.array([s.t_s for s in samples])
+        inside = (t >= times[0]) & (t <= times[-1])
+        if not inside.any():
+            return 0
+        q_true = quat_interpolate(times, quats, t[inside])
+        q_meas = np.array([s.q_body_to_icrs for s in samples])[inside]
+        err = quat_angle_between(q_true, q_meas)
+        sig = np.sqrt(np.array([np.max(np.linalg.eigvalsh(s.covariance_rad2)) for s in samples]))[inside]
+        wrong = int(np.sum(err > np.maximum(5 * sig, np.radians(20 / 3600))))
+        self._n_wrong += wrong
+        self._n_samples_total += int(inside.sum())
+        return wrong
+
+    @property
+    def n_wrong_samples_total(self) -> int:
+        return self._n_wrong
+
+    @property
+    def reacquisition_times_s(self) -> list[float]:
+        return list(self._reacquisition_s)
 
     def _run_frame(self, t_frame: float, truth, rng, omega_hint=None) -> list:
         """Image, detect and process one frame starting at ``t_frame``; returns the attitude samples."""
         cfg = self.config
+        t_mid = t_frame + 0.5 * cfg.frame_period_s
+        if self.faults and self.faults.frame_dropped(t_mid):
+            self.last_stats = dict(self._empty_stats(), exposures_per_frame=0)
+            return []
         want_single = cfg.exposure_mode == "single" or self.tracker.requested_n_exposures == 1
         if want_single:
             plan = ExposurePlan(n_exposures=1, exposure_s=cfg.single_exposure_s, frame_period_s=cfg.frame_period_s,
@@ -254,19 +320,35 @@ class Avionics:
         else:
             n = int(cfg.n_exposures)
             plan = ExposurePlan(n_exposures=n, exposure_s=cfg.exposure_s, frame_period_s=cfg.frame_period_s)
-        scene = compute_scene(self.camera, self.catalog, truth, plan, t_frame)
+        bodies = ()
+        if self.faults:
+            t_s, q_s = truth
+            q_mid = quat_interpolate(t_s, q_s, np.clip(t_mid, t_s[0], t_s[-1]))
+            bore = quat_rotate(q_mid, self.camera.boresight_body())
+            sun = self.faults.sun_direction_world(t_mid, bore, rng)
+            if sun is not None:
+                bodies = (BrightBody("sun", tuple(sun)),)
+        scene = compute_scene(self.camera, self.catalog, truth, plan, t_frame, bright_bodies=bodies)
         det = simulate_detections(scene, self.sensor_model, rng, fidelity=cfg.fidelity)
+        t_exp = plan.exposure_mid_times(t_frame)
+        if self.faults:
+            det = self.faults.modify_detections(det, t_mid, rng, self.camera.resolution)
+            t_exp = t_exp + self.faults.timestamp_error_s(t_mid, rng)
         prev_mode = self.tracker_mode
         res = self.tracker.process_frame(
             det.xy,
             det.intensity,
-            plan.exposure_mid_times(t_frame),
+            t_exp,
             t_frame,
             omega_body=omega_hint,
         )
         self.tracker_mode = res.mode
-        if prev_mode == "track" and res.mode == "lost":
+        if prev_mode == "track" and res.mode != "track":
             self._lost_events += 1
+            self._t_lock_lost = t_frame
+        if res.mode == "track" and prev_mode != "track" and self._t_lock_lost is not None:
+            self._reacquisition_s.append(t_frame + cfg.frame_period_s - self._t_lock_lost)
+            self._t_lock_lost = None
         if cfg.keep_images:
             self._last_frame = (scene, det, plan)
         self.last_stats = dict(

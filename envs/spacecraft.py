@@ -411,15 +411,18 @@ class Spacecraft:
         if nq < 1e-12:
             raise ValueError("q_body_to_world must be a non-zero quaternion")
         w = as_float_array(omega_body, "omega_body", last_dim=3, ndim=1)
+        ws = None
         if wheel_speeds_rad_s is not None:
             ws = as_float_array(wheel_speeds_rad_s, "wheel_speeds_rad_s", ndim=1)
             if ws.shape != (self._n,):
                 raise ValueError(f"wheel_speeds_rad_s must have shape ({self._n},), got {ws.shape}")
             if np.any(np.abs(ws) > self._speed_max * (1 + 1e-9)):
                 raise ValueError(f"wheel_speeds_rad_s must lie within ±{self._speed_max} rad/s, got {ws}")
+        t = None if time_s is None else float(as_float_array(time_s, "time_s"))
+        # everything validated: now write
+        if ws is not None:
             self.data.qvel[self._sl_wv] = ws
-        if time_s is not None:
-            t = float(as_float_array(time_s, "time_s"))
+        if t is not None:
             self.data.time = t
         self.data.qpos[self._sl_pos] = 0.0
         self.data.qvel[self._sl_vlin] = 0.0

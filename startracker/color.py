@@ -10,8 +10,12 @@ Niu, Wei & Li, Sensors 24, 259, 2024). This module holds
   share the optics (detector size, pixel pitch, mounting) but each have their own focal length,
   principal point, first-order radial distortion and an in-plane detector rotation (paper 004
   eqs. 1-3 and 21-23, Table 1 as :meth:`ColorCamera.paper004`);
-* **registration and fusion** of the three channels' centroids into the green frame
-  (:func:`fuse_channel_centroids`), with each star's measured colour ratio.
+* **channel imaging**: the three channel scenes of one frame, single or multi-exposure
+  (:func:`channel_scenes`, :func:`startracker.scene.compute_scene` per channel) and their images
+  (:func:`render_color_frame`, :func:`startracker.imaging.render_frame` per detector);
+* **fusion**: the three channels' centroids registered into the green frame and merged
+  (:func:`fuse_channel_centroids`), or the registered images summed (:func:`fuse_channel_images`), and each
+  star's colour ratio ``ln(red / blue)`` by aperture photometry (:func:`aperture_photometry`).
 
 The registration model and its calibration (paper 004 eqs. 13-18, §3) live in
 :mod:`startracker.registration` and are re-exported here (:func:`calibrate_registration`,
@@ -48,6 +52,8 @@ from startracker.scene import ExposurePlan, Scene, compute_scene
 __all__ = [
     "CHANNELS",
     "BANDS_NM",
+    "BV_RANGE",
+    "DEFAULT_RESPONSE",
     "bv_to_teff",
     "planck_photon_radiance",
     "ChannelResponse",
@@ -577,7 +583,8 @@ def _map_between_channels(cam_from: Camera, cam_to: Camera, xy: np.ndarray) -> n
 
 
 def render_color_frame(scenes, model: SensorModel, rng: np.random.Generator, *,
-                       false_objects: bool = True, debris_bv: float = 0.65) -> np.ndarray:
+                       false_objects: bool = True, debris_bv: float = 0.65,
+                       response: ChannelResponse = DEFAULT_RESPONSE) -> np.ndarray:
     """Render the three channel images of one frame with :func:`startracker.imaging.render_frame`.
 
     Every channel is its own detector: its fixed pattern (PRNU, hot pixels) uses
@@ -596,6 +603,8 @@ def render_color_frame(scenes, model: SensorModel, rng: np.random.Generator, *,
         Draw cosmic rays and debris (False: none).
     debris_bv : float
         Colour of debris (reflected sunlight, B−V ≈ 0.65).
+    response : ChannelResponse
+        Splits the debris light between the channels (use the ``ColorCamera``'s).
 
     Returns
     -------
@@ -618,7 +627,7 @@ def render_color_frame(scenes, model: SensorModel, rng: np.random.Generator, *,
     models = [replace(model, fixed_pattern_seed=model.fixed_pattern_seed + i) for i in range(3)]
     if false_objects:
         fo_g = draw_false_objects(scenes[1], models[1], rng)
-        share = DEFAULT_RESPONSE.electrons([debris_bv])[0]
+        share = response.electrons([debris_bv])[0]
     images = []
     for i, sc in enumerate(scenes):
         if false_objects:

@@ -442,7 +442,7 @@ class AttitudeEKF:
         bool
             False when the sample was rejected by the innovation gate.
         """
-        qm = as_float_array(q_meas_body_to_world, "q_meas_body_to_world", last_dim=4, ndim=1)
+        qm = self._unit(as_float_array(q_meas_body_to_world, "q_meas_body_to_world", last_dim=4, ndim=1))
         r = self._check_cov(covariance_rad2, "covariance_rad2")
         if t is not None:
             t = float(as_float_array(t, "t"))
@@ -451,7 +451,7 @@ class AttitudeEKF:
             if t > self.t_s:
                 self.propagate(self._omega_gyro_last if omega_gyro is None else omega_gyro, t - self.t_s)
                 self.t_s = t
-        z = np.array(_qlog_residual(self.q_body_to_world.tolist(), self._unit(qm).tolist()))
+        z = np.array(_qlog_residual(self.q_body_to_world.tolist(), qm.tolist()))
         if self.gate_chi2 is not None:
             s = self.ekf.P[:3, :3] + r
             if float(z @ _inv3_sym(s) @ z) > self.gate_chi2:

@@ -46,6 +46,8 @@ import numpy as np
 
 from startracker.attitude import RAD_TO_ARCSEC
 from startracker.catalog import StarCatalog
+from startracker.identify import METHODS as ID_METHODS
+from startracker.identify import IdentificationResult, identify
 from startracker.optics import Camera
 from startracker.rotations import (
     as_float_array,
@@ -292,8 +294,6 @@ class StarTracker:
             raise TypeError(f"catalog must be a startracker.catalog.StarCatalog, got {type(catalog).__name__}")
         if matcher not in MATCH_METHODS:
             raise ValueError(f"matcher must be one of {MATCH_METHODS}, got {matcher!r}")
-        from startracker.identify import METHODS as ID_METHODS
-
         if identify_method not in ID_METHODS:
             raise ValueError(f"identify_method must be one of {sorted(ID_METHODS)}, got {identify_method!r}")
         self.camera = camera
@@ -633,8 +633,6 @@ class StarTracker:
 
     # ------------------------------------------------------------------ helpers
     def _identify(self, xy, intensity):
-        from startracker.identify import IdentificationResult, identify
-
         if len(xy) < 3:
             return IdentificationResult(False, np.full(len(xy), -1), np.array([1.0, 0, 0, 0]), 0, np.inf, 0.0,
                                         "fewer than 3 detections", self.identify_method)

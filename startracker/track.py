@@ -147,8 +147,8 @@ class DKVLUT:
         "_degenerate", "_any_degenerate",
     )
 
-    def __init__(self, predicted_xy):
-        xy = _check_points(predicted_xy, "predicted_xy")
+    def __init__(self, predicted_xy, _checked: bool = False):
+        xy = predicted_xy if _checked else _check_points(predicted_xy, "predicted_xy")
         if len(xy) == 0:
             raise ValueError("predicted_xy must contain at least one point")
         self.xy = xy
@@ -269,6 +269,9 @@ class DKVLUT:
         r = _check_radius(radius_px)
         if len(obs) == 0:
             return np.empty(0, dtype=np.int64)
+        return self._match(obs, r)
+
+    def _match(self, obs: np.ndarray, r: float) -> np.ndarray:
         obs_t = np.ascontiguousarray(obs.T)
         qi, e = self._intersection(obs_t, r)
         dx = obs_t[0].take(qi)
@@ -349,7 +352,7 @@ def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut") ->
     if len(pred) == 0 or len(obs) == 0:
         return np.full(len(obs), -1, dtype=np.int64)
     if method == "dkvlut":
-        return DKVLUT(pred).match(obs, r)
+        return DKVLUT(pred, _checked=True)._match(obs, r)
     if method == "brute":
         return _match_brute(pred, obs, r)
     return _match_kdtree(pred, obs, r)
@@ -462,7 +465,7 @@ def predict_star_positions(
         e = np.empty(0, dtype=np.int64)
         return PredictedStars(np.empty((0, 2)), e, e.copy(), np.empty(0, dtype=bool), t, q_body)
     v_icrs = catalog.vectors[cand]  # (S, 3)
-    v_cam = np.einsum("nji,sj->nsi", r_cam_to_icrs, v_icrs)  # R^T v per instant, (N, S, 3)
+    v_cam = v_icrs[None] @ r_cam_to_icrs  # (R^T v)^T = v^T R per instant, (N, S, 3)
     xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True)
     wdt, hgt = camera.resolution
     x, y = xy[:, 0], xy[:, 1]

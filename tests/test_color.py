@@ -339,7 +339,7 @@ def test_color_identification_end_to_end_from_pixels(color_frames):
     """Fused detections and aperture colours of rendered 3CMOS frames identify with the right HIPs."""
     cc, reg, model, frames = color_frames
     cam = cc.channel_camera("green")
-    cat = load_catalog(7.5)
+    cat = load_catalog(6.0)  # the frames hold stars to V 7.5: the fainter ones stay unlabelled
     n_ok = 0
     for scenes, images in frames:
         fused = fuse_channel_centroids([extract_centroids(im) for im in images], reg,

@@ -333,6 +333,8 @@ def test_bad_input():
     with pytest.raises(ValueError, match="q_meas_body_to_world"):
         f.update([0, 0, 0, 0], cov)
     f.propagate([0, 0, 0], 1.0)
+    with pytest.raises(ValueError, match="q_meas_body_to_world"):
+        f.update([0, 0, 0, 0], cov, t=1.5, omega_gyro=[0.1, 0, 0])  # rejected before propagating
     with pytest.raises(ValueError, match="t="):
         f.update([1, 0, 0, 0], cov, t=0.5)
     with pytest.raises(ValueError, match="t_gyro_s"):

@@ -219,10 +219,14 @@ def test_bad_input_raises_with_argument_name():
         sc.set_state([0, 0, 0, 0], [0, 0, 0])
     with pytest.raises(ValueError, match="wheel_speeds_rad_s"):
         sc.set_state([1, 0, 0, 0], [0, 0, 0], [1e4, 0, 0, 0])
+    with pytest.raises(ValueError, match="time_s"):
+        sc.set_state([0, 1, 0, 0], [1, 0, 0], [10.0, 0, 0, 0], time_s=np.nan)
     with pytest.raises(ValueError, match="state"):
         sc.restore_state(np.zeros(3))
     # the rejected calls left the state untouched
     np.testing.assert_array_equal(sc.q_body_to_world, [1, 0, 0, 0])
+    np.testing.assert_array_equal(sc.wheel_speeds_rad_s, 0.0)
+    np.testing.assert_array_equal(sc.commanded_wheel_torque_Nm, 0.0)
     assert sc.time_s == 0.0
 
 

@@ -137,8 +137,8 @@ def triangles(db, frame: Frame, cands, i: int, j: int, k: int) -> np.ndarray:
     if len(sel) == 0:
         return empty
     a, b, c = a[sel], b[sel], c[sel]
-    v = frame.v
-    s_meas = float(np.dot(v[i], np.cross(v[j], v[k])))
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = frame.v[[i, j, k]].tolist()
+    s_meas = a0 * (b1 * c2 - b2 * c1) - a1 * (b0 * c2 - b2 * c0) + a2 * (b0 * c1 - b1 * c0)
     s_cat = np.einsum("ij,ij->i", nav[a], _cross(vb[sel], vc[sel]))
     same = (s_cat > 0) == (s_meas > 0)
     return np.column_stack([a[same], b[same], c[same]])

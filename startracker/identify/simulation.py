@@ -145,18 +145,22 @@ def score_result(result, frame: SyntheticFrame, attitude_tol_arcsec: float = 600
     Returns
     -------
     str
-        ``"fail"`` (no identification), ``"wrong"`` (success but the attitude is off by more than
-        ``attitude_tol_arcsec`` or a true star carries another star's HIP), ``"correct"`` otherwise. A wrong
-        identification is off by degrees; 10′ leaves room for the roll error of a few clustered stars. A false
-        star labelled with the HIP of a catalog star it happens to sit on (within the verification radius)
-        does not make the attitude wrong; :func:`false_labels` counts those.
+        ``"fail"`` (no identification), ``"wrong"`` (success with a true star carrying another star's HIP,
+        fewer than three true stars identified, or an attitude off by more than ``attitude_tol_arcsec``
+        and more than six standard deviations of the reported covariance), ``"correct"`` otherwise. A
+        wrong identification is off by degrees; the covariance term leaves room for the roll error of
+        noisy or clustered stars. A false star labelled with the HIP of a catalog star it happens to sit
+        on does not make the result wrong; :func:`false_labels` counts those.
     """
     if not result.success:
         return "fail"
     err = float(np.degrees(quat_angle_between(result.q_cam_to_icrs, frame.q_cam_to_icrs)) * 3600.0)
+    cov = result.covariance_rad2
+    sig = float(np.degrees(np.sqrt(np.max(np.linalg.eigvalsh(cov)))) * 3600.0) if cov is not None else 0.0
     true = frame.hip >= 0
-    mislabelled = np.any((result.star_ids[true] != -1) & (result.star_ids[true] != frame.hip[true]))
-    if err > attitude_tol_arcsec or mislabelled:
+    labelled = result.star_ids[true] >= 0
+    mislabelled = np.any(labelled & (result.star_ids[true] != frame.hip[true]))
+    if mislabelled or np.count_nonzero(labelled) < 3 or err > max(attitude_tol_arcsec, 6.0 * sig):
         return "wrong"
     return "correct"
 

@@ -156,7 +156,11 @@ def required_matches(lam: float, n_det: int, p: float, false_alarm: float) -> in
 
 
 def match_detections(db, v_icrs: np.ndarray, tol_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Nearest navigation star of each direction within ``tol_rad``, one star per detection.
+    """Nearest navigation star of each direction within ``tol_rad``, unambiguous and one star per detection.
+
+    A detection whose second-nearest catalog star is not at least ``tol_rad`` farther than the nearest
+    is ambiguous (two stars a few noise widths apart) and stays unmatched; a star claimed by two
+    detections keeps the nearer one.
 
     Parameters
     ----------
@@ -168,15 +172,15 @@ def match_detections(db, v_icrs: np.ndarray, tol_rad: float) -> tuple[np.ndarray
     Returns
     -------
     det, nav : ndarray of int, shape (m,)
-        Matched detection rows and navigation indices (a star claimed twice keeps the nearer detection).
+        Matched detection rows and navigation indices.
     dist : ndarray, shape (m,)
         Chord distances.
     """
     chord = 2.0 * math.sin(tol_rad / 2.0)
-    dist, idx = db.tree.query(v_icrs, k=1, distance_upper_bound=chord)
-    det = np.flatnonzero(dist <= chord)
-    nav = idx[det]
-    d = dist[det]
+    dist, idx = db.tree.query(v_icrs, k=2, distance_upper_bound=3.0 * chord)
+    det = np.flatnonzero((dist[:, 0] <= chord) & (dist[:, 1] > dist[:, 0] + chord))
+    nav = idx[det, 0]
+    d = dist[det, 0]
     if len(nav) > 1 and len(set(nav.tolist())) < len(nav):
         o = np.lexsort((d, nav))
         first = np.ones(len(o), dtype=bool)

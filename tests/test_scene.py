@@ -1,0 +1,266 @@
+"""Scene truth: exposure plans, the no-overlap rule for N, star positions at the exposure instants."""
+
+import numpy as np
+import pytest
+
+from startracker.catalog import load_catalog
+from startracker.optics import Camera, camera_preset
+from startracker.rotations import quat_from_rotvec, quat_integrate, quat_multiply, quat_random, quat_to_matrix
+from startracker.scene import (
+    BrightBody,
+    ExposurePlan,
+    choose_n_exposures,
+    compute_scene,
+    min_image_speed_px_s,
+    scene_from_tracks,
+)
+
+CAM = camera_preset("paper000")
+CAT = load_catalog(6.0)
+
+
+def constant_rate(q0, omega_body):
+    """Attitude history rotating at a constant body rate from q0 at t = 0."""
+    return lambda t: quat_integrate(np.broadcast_to(q0, (len(t), 4)), omega_body, np.asarray(t))
+
+
+def pinhole(cam, v_cam):
+    """Independent pinhole: col = cx + f/p X/Z, row = cy + f/p Y/Z (no distortion)."""
+    f_px = cam.focal_length_mm / (cam.pixel_size_um * 1e-3)
+    return np.column_stack([cam.principal_point[0] + f_px * v_cam[:, 0] / v_cam[:, 2],
+                            cam.principal_point[1] + f_px * v_cam[:, 1] / v_cam[:, 2]])
+
+
+# ------------------------------------------------------------------------------------- plan
+def test_exposure_mid_times_are_starts_plus_half_exposure():
+    plan = ExposurePlan(n_exposures=4, exposure_s=0.002, spacing_s=0.02, frame_period_s=0.1, start_offset_s=0.001)
+    np.testing.assert_allclose(plan.exposure_mid_times(10.0), 10.0 + 0.001 + 0.02 * np.arange(4) + 0.001)
+    np.testing.assert_allclose(plan.exposure_end_times(10.0) - plan.exposure_start_times(10.0), 0.002)
+    assert plan.update_rate_hz == pytest.approx(40.0)
+    assert plan.integration_window_s == pytest.approx(0.062)
+    assert plan.total_exposure_s == pytest.approx(0.008)
+
+
+def test_default_spacing_spreads_exposures_evenly_over_the_frame():
+    plan = ExposurePlan(n_exposures=5, exposure_s=1e-3, frame_period_s=0.1)
+    assert plan.spacing_s == pytest.approx(0.02)
+    # consecutive frames continue the uniform stream: the next frame's first exposure is one spacing later
+    t = np.concatenate([plan.exposure_mid_times(0.0), plan.exposure_mid_times(0.1)])
+    np.testing.assert_allclose(np.diff(t), 0.02)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(n_exposures=0, exposure_s=1e-3),
+        dict(n_exposures=-2, exposure_s=1e-3),
+        dict(n_exposures=3, exposure_s=-1e-3),
+        dict(n_exposures=3, exposure_s=0.0),
+        dict(n_exposures=3, exposure_s=float("nan")),
+        dict(n_exposures=3, exposure_s=0.01, spacing_s=0.005),  # overlapping exposures
+        dict(n_exposures=11, exposure_s=0.01, spacing_s=0.01, frame_period_s=0.1),  # 0.11 s > 0.1 s
+        dict(n_exposures=1, exposure_s=0.2, frame_period_s=0.1),
+        dict(n_exposures=2, exposure_s=1e-3, frame_period_s=float("inf")),
+        dict(n_exposures=2, exposure_s=1e-3, start_offset_s=-0.01),
+    ],
+)
+def test_bad_plans_raise_value_error(kwargs):
+    with pytest.raises(ValueError):
+        ExposurePlan(**kwargs)
+
+
+def test_plan_type_errors():
+    with pytest.raises(TypeError):
+        ExposurePlan(n_exposures=2.5, exposure_s=1e-3)
+    with pytest.raises(TypeError):
+        ExposurePlan(n_exposures=True, exposure_s=1e-3)
+
+
+# ------------------------------------------------------------------------------------- choosing N
+def test_twenty_deg_per_s_gives_paper000_update_rate():
+    """Paper 000 §1/§5: MEIA reaches 210 Hz at 20°/s with 10 Hz frames (N = 21)."""
+    plan = ExposurePlan.for_rate(np.radians(20.0), CAM, frame_period_s=0.1)
+    assert plan.n_exposures == 21
+    assert plan.update_rate_hz == pytest.approx(210.0)
+    # and without the cap, the rule itself gives 21 (v T / (v τ + 6σ) = 21.97)
+    assert choose_n_exposures(np.radians(20.0), CAM, 0.1, 1e-3, 1.2, n_max=100) == 21
+    assert choose_n_exposures(0.0, CAM) == 1
+
+
+def test_n_is_monotone_in_rate_and_bounded():
+    rates = np.radians(np.linspace(0.0, 40.0, 161))
+    ns = [choose_n_exposures(r, CAM) for r in rates]
+    assert np.all(np.diff(ns) >= 0)
+    assert ns[0] == 1 and max(ns) == 21
+    axis = np.array([0.6, -0.8, 0.3])
+    ns_vec = [choose_n_exposures(r * axis / np.linalg.norm(axis), CAM) for r in rates]
+    assert np.all(np.diff(ns_vec) >= 0)
+    assert choose_n_exposures(np.radians(30.0), CAM, n_max=7) == 7
+
+
+def test_rule_formula_by_hand():
+    f_px = 31.94 / 5.5e-3
+    v = f_px * np.radians(5.0)
+    expected = int(np.floor(v * 0.1 / (v * 2e-3 + 6 * 1.5)))
+    assert choose_n_exposures(np.radians(5.0), CAM, 0.1, 2e-3, 1.5) == expected
+    assert min_image_speed_px_s(np.radians(5.0), CAM) == pytest.approx(v)
+
+
+def test_pure_roll_has_a_still_point_so_n_is_one():
+    assert min_image_speed_px_s(np.array([0.0, 0.0, 0.3]), CAM) == pytest.approx(0.0, abs=1e-9)
+    assert choose_n_exposures(np.array([0.0, 0.0, 0.3]), CAM) == 1
+
+
+@pytest.mark.parametrize("bad", [float("nan"), -0.1, np.array([0.1, np.inf, 0.0]), np.zeros(2)])
+def test_bad_rates_raise(bad):
+    with pytest.raises(ValueError):
+        choose_n_exposures(bad, CAM)
+
+
+def segment_distance(p0, p1, q0, q1, n=41):
+    """Minimum distance between two short segments (dense sampling, exact enough for a test)."""
+    s = np.linspace(0, 1, n)[:, None]
+    a = p0 + s * (p1 - p0)
+    b = q0 + s * (q1 - q0)
+    return np.min(np.linalg.norm(a[:, None] - b[None], axis=-1))
+
+
+def test_spots_of_a_star_never_overlap_at_the_chosen_n():
+    """At the chosen N, consecutive streaks of every star stay at least 6σ apart (the rule's promise)."""
+    rng = np.random.default_rng(3)
+    sigma = 1.2
+    checked = 0
+    for _ in range(12):
+        rate = np.radians(rng.uniform(1.0, 25.0))
+        q0 = quat_random(rng)
+        # cross-boresight axis (camera +z is the body +z with the default mounting), plus a small roll
+        phi = rng.uniform(0, 2 * np.pi)
+        axis = np.array([np.cos(phi), np.sin(phi), 0.0])
+        omega = rate * axis + np.array([0.0, 0.0, rng.uniform(-0.02, 0.02)])
+        plan = ExposurePlan.for_rate(omega, CAM, psf_sigma_px=sigma)
+        if plan.n_exposures < 2:
+            continue
+        sc = compute_scene(CAM, CAT, constant_rate(q0, omega), plan, 0.0)
+        for m in range(sc.n_stars):
+            for i in range(plan.n_exposures - 1):
+                if not (sc.visible[i, m] and sc.visible[i + 1, m]):
+                    continue
+                gap = segment_distance(sc.xy_start[i, m], sc.xy_end[i, m], sc.xy_start[i + 1, m], sc.xy_end[i + 1, m])
+                assert gap >= 6 * sigma - 1e-6
+                checked += 1
+    assert checked > 500
+
+
+# ------------------------------------------------------------------------------------- geometry
+def test_positions_are_the_pinhole_projection_at_each_exposure_mid_time():
+    rng = np.random.default_rng(0)
+    q0 = quat_random(rng)
+    omega = np.radians([3.0, -2.0, 1.0])
+    plan = ExposurePlan(n_exposures=5, exposure_s=2e-3, frame_period_s=0.1)
+    att = constant_rate(q0, omega)
+    sc = compute_scene(CAM, CAT, att, plan, 0.05)
+    assert sc.n_stars > 10
+    np.testing.assert_allclose(sc.times, 0.05 + 0.02 * np.arange(5) + 1e-3)
+    for i, t in enumerate(sc.times):
+        r_bw = quat_to_matrix(att(np.array([t]))[0])
+        v_cam = CAT.vectors[sc.star_index] @ r_bw  # R^T v (identity mounting)
+        np.testing.assert_allclose(sc.xy[i], pinhole(CAM, v_cam), atol=1e-6)
+    np.testing.assert_array_equal(sc.hip, CAT.hip[sc.star_index])
+    np.testing.assert_allclose(sc.q_body_to_world, att(sc.times), atol=1e-12)
+
+
+def test_cone_search_keeps_exactly_the_stars_brute_force_finds():
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        q0 = quat_random(rng)
+        plan = ExposurePlan(n_exposures=1, exposure_s=0.05)
+        sc = compute_scene(CAM, CAT, lambda t: np.tile(q0, (len(t), 1)), plan, 0.0, edge_margin_px=0.0)
+        v_cam = CAT.vectors @ quat_to_matrix(q0)
+        front = v_cam[:, 2] > 0
+        xy = pinhole(CAM, np.where(front[:, None], v_cam, 1.0))
+        inside = front & (xy[:, 0] >= -0.5) & (xy[:, 0] <= 2047.5) & (xy[:, 1] >= -0.5) & (xy[:, 1] <= 2047.5)
+        assert set(np.flatnonzero(inside)) == set(sc.star_index[sc.visible[0]])
+        assert set(np.flatnonzero(inside)) == set(sc.star_index)
+
+
+def test_mounting_and_sampled_attitude_agree_with_callable():
+    """A star on the mounted camera's boresight lands on the principal point; tuple == callable."""
+    q_cb = quat_from_rotvec(np.array([np.pi / 2, 0.0, 0.0]))  # camera +z = body -y
+    cam = CAM.with_mounting(q_cb)
+    q_bw = quat_random(np.random.default_rng(4))
+    boresight_world = quat_to_matrix(quat_multiply(q_bw, q_cb)) @ np.array([0.0, 0.0, 1.0])
+    star = int(np.argmax(CAT.vectors @ boresight_world))
+    # rotate the body so that the boresight points exactly at the star
+    axis = np.cross(boresight_world, CAT.vectors[star])
+    ang = np.arcsin(np.linalg.norm(axis))
+    q_fix = quat_multiply(quat_from_rotvec(axis / np.linalg.norm(axis) * ang), q_bw)
+    plan = ExposurePlan(n_exposures=1, exposure_s=0.01)
+    sc = compute_scene(cam, CAT, lambda t: np.tile(q_fix, (len(t), 1)), plan, 0.0)
+    k = int(np.flatnonzero(sc.star_index == star)[0])
+    np.testing.assert_allclose(sc.xy[0, k], cam.principal_point, atol=1e-6)
+    omega = np.radians([1.0, 2.0, 0.5])
+    att = constant_rate(q_fix, omega)
+    ts = np.linspace(-0.1, 0.3, 401)
+    plan5 = ExposurePlan(n_exposures=5, exposure_s=1e-3)
+    a = compute_scene(cam, CAT, att, plan5, 0.0)
+    b = compute_scene(cam, CAT, (ts, att(ts)), plan5, 0.0)
+    np.testing.assert_array_equal(a.star_index, b.star_index)
+    np.testing.assert_allclose(a.xy_path, b.xy_path, atol=1e-3)
+
+
+def test_smear_length_is_focal_length_times_rate_times_exposure():
+    q0 = np.array([1.0, 0.0, 0.0, 0.0])
+    omega = np.array([np.radians(10.0), 0.0, 0.0])
+    plan = ExposurePlan(n_exposures=3, exposure_s=2e-3)
+    sc = compute_scene(CAM, CAT, constant_rate(q0, omega), plan, 0.0)
+    assert sc.visible.sum() > 30
+    f_px = CAM.focal_length_px
+    # image speed of the pinhole for rotation about x: (x y / f, f + y²/f) ω
+    y = sc.xy[..., 1] - CAM.principal_point[1]
+    x = sc.xy[..., 0] - CAM.principal_point[0]
+    speed = np.hypot(x * y / f_px, f_px + y * y / f_px) * omega[0]
+    np.testing.assert_allclose(sc.smear_px[sc.visible], (speed * 2e-3)[sc.visible], rtol=2e-3)
+    # uniform motion: the time-averaged position is the mid-time position
+    np.testing.assert_allclose(sc.xy_mean, sc.xy, atol=1e-3)
+
+
+def test_bright_body_angle():
+    sun_dir = np.array([np.sin(np.radians(40)), 0.0, np.cos(np.radians(40))])
+    sc = compute_scene(CAM, CAT, lambda t: np.tile([1.0, 0, 0, 0], (len(t), 1)), ExposurePlan(2, 1e-3), 0.0,
+                       bright_bodies=[BrightBody("sun", sun_dir)])
+    assert sc.bright_bodies[0].angle_rad == pytest.approx(np.radians(40.0))
+
+
+@pytest.mark.parametrize(
+    "attitude",
+    [
+        lambda t: np.full((len(t), 4), np.nan),
+        lambda t: np.zeros((len(t), 4)),
+        lambda t: np.ones((len(t), 3)),
+        "not an attitude",
+    ],
+)
+def test_bad_attitudes(attitude):
+    with pytest.raises((ValueError, TypeError)):
+        compute_scene(CAM, CAT, attitude, ExposurePlan(2, 1e-3), 0.0)
+
+
+def test_bad_scene_arguments():
+    att = lambda t: np.tile([1.0, 0, 0, 0], (len(t), 1))  # noqa: E731
+    with pytest.raises(ValueError):
+        compute_scene(CAM, CAT, att, ExposurePlan(2, 1e-3), float("nan"))
+    with pytest.raises(ValueError):
+        compute_scene(CAM, CAT, att, ExposurePlan(2, 1e-3), 0.0, n_path_samples=4)
+    with pytest.raises(TypeError):
+        compute_scene(CAM, CAT, att, "plan", 0.0)
+    with pytest.raises(ValueError):  # samples that do not cover the exposures
+        compute_scene(CAM, CAT, (np.array([0.0, 0.01]), np.tile([1.0, 0, 0, 0], (2, 1))), ExposurePlan(2, 1e-3), 0.0)
+
+
+def test_scene_from_tracks_moves_linearly():
+    cam = Camera(resolution=(128, 128))
+    plan = ExposurePlan(4, 1e-3, frame_period_s=0.1)
+    sc = scene_from_tracks(cam, plan, [[60.0, 70.0]], [5.0], [[100.0, -50.0]])
+    t_c = 0.5 * plan.integration_window_s
+    np.testing.assert_allclose(sc.xy[:, 0, 0], 60.0 + 100.0 * (sc.times - t_c))
+    np.testing.assert_allclose(sc.smear_px[:, 0], np.hypot(100, 50) * 1e-3)

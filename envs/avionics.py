@@ -331,6 +331,8 @@ class Avionics:
         scene = compute_scene(self.camera, self.catalog, truth, plan, t_frame, bright_bodies=bodies)
         det = simulate_detections(scene, self.sensor_model, rng, fidelity=cfg.fidelity)
         t_exp = plan.exposure_mid_times(t_frame)
+        if len(det) and np.any(det.intensity <= 0):
+            det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
         if self.faults:
             det = self.faults.modify_detections(det, t_mid, rng, self.camera.resolution)
             t_exp = t_exp + self.faults.timestamp_error_s(t_mid, rng)

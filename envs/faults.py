@@ -162,7 +162,9 @@ class FaultSchedule:
             if n_false:
                 w, h = resolution
                 xy = np.column_stack([rng.uniform(-0.5, w - 0.5, n_false), rng.uniform(-0.5, h - 0.5, n_false)])
-                inten = rng.choice(out.intensity, n_false) * rng.uniform(0.5, 2.0, n_false)
+                # as bright as the frame's own detections, so brightness alone cannot reject them
+                ref = np.abs(out.intensity)
+                inten = rng.choice(ref[ref > 0] if np.any(ref > 0) else np.ones(1), n_false) * rng.uniform(0.5, 2.0, n_false)
                 out = _concat(out, xy, inten)
         return out
 

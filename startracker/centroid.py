@@ -180,7 +180,7 @@ def _check_sigma(psf_sigma_px):
 def _clipped_block_stats(image: np.ndarray, block_px: int):
     """Sigma-clipped mean and variance of every block (every second pixel), with block centres."""
     n_rows, n_cols = image.shape
-    b = max(4, min(block_px, n_rows, n_cols))
+    b = max(4, min(block_px, n_rows // 4, n_cols // 4))  # at least 4x4 blocks
     nby, nbx = n_rows // b, n_cols // b
     sub = image[: nby * b : 2, : nbx * b : 2].astype(np.float64)
     hb = (b + 1) // 2
@@ -221,6 +221,8 @@ def estimate_background(image, background: str = "plane", block_px: int = 64):
     sigma : callable (rows, cols) -> DN
     (level_at_centre, sigma_at_centre) : (float, float)
     """
+    if background not in ("plane", "local", "global"):
+        raise ValueError(f"background must be 'plane', 'local' or 'global', got {background!r}")
     mean, var, xc, yc, b = _clipped_block_stats(image, block_px)
     n_rows, n_cols = image.shape
     if background == "global":

@@ -342,6 +342,12 @@ class StarTracker:
         self._candidate: _Candidate | None = None
         self._last_frame_time: float | None = None
         self._frame_interval_s = self.frame_period_s
+        self._last_gyro: tuple | None = None
+
+    def _previous_gyro(self, t_frame: float):
+        """The previous frame's gyro reading as a rate measurement, if recent (else None)."""
+        g = self._last_gyro
+        return g if g is not None and 0 < t_frame - g[0] <= self.coast_max_s else None
 
     @property
     def mode(self) -> str:
@@ -434,6 +440,7 @@ class StarTracker:
             dt_frame = t_frame - self._last_frame_time
             self._frame_interval_s = dt_frame
         self._last_frame_time = t_frame
+        self._last_gyro = None if gyro is None else (t_frame, gyro, self.gyro_sigma_rad_s**2 * np.eye(3))
         rate = len(result.samples) / dt_frame
         return replace(result, update_rate_hz=float(rate), mode=self._mode)
 
@@ -451,7 +458,7 @@ class StarTracker:
         if prior is not None:
             w = np.zeros(3) if gyro is None else gyro
             var_w = self.gyro_sigma_rad_s**2 if gyro is not None else self.max_rate_rad_s**2
-            meas = None if gyro is None else (t_frame, gyro, var_w * np.eye(3))
+            meas = None if gyro is None else self._previous_gyro(t_frame)
             st = MotionState(t_frame, prior, self.prior_sigma_rad**2 * np.eye(3), w, var_w * np.eye(3), rate_meas=meas)
             att = self._track(xy, t_exp, st, gyro, t_frame)
             latency += att.latency_ms
@@ -482,7 +489,7 @@ class StarTracker:
             return self._lost(xy, intensity, t_exp, gyro, t_frame, None)
         if gyro is not None:
             var_g = self.gyro_sigma_rad_s**2 * np.eye(3)
-            st = MotionState(cand.t_s, cand.q_body_to_icrs, cand.cov_theta_rad2, gyro, var_g, rate_meas=(t_frame, gyro, var_g))
+            st = MotionState(cand.t_s, cand.q_body_to_icrs, cand.cov_theta_rad2, gyro, var_g, rate_meas=self._previous_gyro(t_frame))
             att = self._track(xy, t_exp, st, gyro, t_frame)
             if att.ok:
                 return self._accept(att, xy, t_exp, status="acquired: identification confirmed by tracking")
@@ -527,15 +534,21 @@ class StarTracker:
         """Rate at ``st.t_s``, acceleration and their covariances used to propagate ``st``."""
         if gyro is None:
             return st.omega_body, st.alpha_body, st.cov_omega, self._cov_alpha_total(st)
+        # Gyro readings at this and the previous frame: the rate in between is their interpolation (the
+        # slope is the acceleration), with the gyro's error; the unmodelled acceleration change only
+        # enters the propagation.
         var_g = self.gyro_sigma_rad_s**2 * np.eye(3)
-        alpha, cov_a = st.alpha_body, st.cov_alpha
+        var_proc = self.accel_sigma_rad_s2**2 * np.eye(3)
+        lever = st.t_s - t_frame
         prev = st.rate_meas
         if prev is not None and 0 < t_frame - prev[0] <= self.coast_max_s:
             alpha = (gyro - prev[1]) / (t_frame - prev[0])
             cov_a = (var_g + prev[2]) / (t_frame - prev[0]) ** 2
-        cov_a = cov_a + self.accel_sigma_rad_s2**2 * np.eye(3)
-        lever = st.t_s - t_frame
-        return gyro + alpha * lever, alpha, var_g + cov_a * lever**2, cov_a
+            cov_w = var_g + cov_a * lever**2
+        else:  # one reading only: extrapolating it to st.t_s also carries the unmodelled acceleration
+            alpha, cov_a = st.alpha_body, st.cov_alpha
+            cov_w = var_g + (cov_a + var_proc) * lever**2
+        return gyro + alpha * lever, alpha, cov_w, cov_a + var_proc
 
     def _track(self, xy, t_exp, st: MotionState, gyro, t_frame, extra_var_alpha: float = 0.0) -> _Attempt:
         t0 = time.perf_counter()
@@ -543,6 +556,15 @@ class StarTracker:
         cov_a = cov_a + extra_var_alpha * np.eye(3)
         sig_pred = prediction_sigma_px(self.camera, st.cov_theta_rad2, t_exp - st.t_s, cov_w, cov_a)
         r = prediction_radius_px(self.centroid_sigma_px, sig_pred, self.radius_k_sigma, self.radius_min_px, self.radius_max_px)
+        if len(t_exp) > 1:
+            # Spots of one star one exposure apart must be well separated against the prediction error,
+            # or the whole frame may match one exposure off (3/4 of the exposure plan's margin).
+            w_cam = self.camera.r_cam_to_body.T @ omega
+            spacing_px = float(np.hypot(w_cam[0], w_cam[1]) * np.min(np.diff(t_exp)) * self.camera.focal_length_px)
+            if spacing_px < 1.5 * self.shift_k_sigma * sig_pred:
+                latency = (time.perf_counter() - t0) * 1e3
+                return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
+                                       f"apart, prediction σ {sig_pred:.1f} px)", [], 0, 0, r, latency)
         pred = predict_star_positions(self.camera, self.catalog, st.q_body_to_icrs, t_exp, st.t_s, omega, alpha, margin_px=r)
         idx = match_stars(pred.xy, xy, r, method=self.matcher)
         latency = (time.perf_counter() - t0) * 1e3

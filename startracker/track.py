@@ -279,8 +279,8 @@ class DKVLUT:
         dy = obs_t[1].take(qi)
         dy -= self._xy_t[1].take(e)
         d2 = dx**2 + dy**2  # the shared expression (x_q - x_p)² + (y_q - y_p)²
-        ok = d2 <= r * r
-        return _nearest_per_query(qi[ok], e[ok], d2[ok], len(obs))
+        ok = np.flatnonzero(d2 <= r * r)
+        return _nearest_per_query(qi.take(ok), e.take(ok), d2.take(ok), len(obs))
 
 
 def _match_brute(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:

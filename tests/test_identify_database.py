@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from startracker.catalog import load_catalog
 from startracker.identify import build_database
-from startracker.identify.pattern_string import N_LEVELS, PatternCatalog, build_pattern_catalog, match_strings
+from startracker.identify.pattern_string import N_LEVELS, PatternCatalog, match_strings
 from startracker.optics import camera_preset
 
 

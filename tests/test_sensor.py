@@ -199,9 +199,9 @@ def test_state_off_by_one_exposure_is_refused(cam, nav):
 def test_recovery_from_an_attitude_prior(cam, nav):
     rng = np.random.default_rng(27)
     slew = Slew(rng, 10.0)
-    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX, prior_sigma_rad=np.radians(100 / 3600))
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX, prior_sigma_rad=np.radians(20 / 3600))
     fr, times, t_frame = frame(cam, nav, slew, 3, 11, rng)
-    q_prior = quat_multiply(slew.q(t_frame), quat_from_rotvec(np.radians([30, -40, 60]) / 3600))
+    q_prior = quat_multiply(slew.q(t_frame), quat_from_rotvec(np.radians([10, -15, 20]) / 3600))
     res = st.process_frame(fr.xy, fr.intensity, times, t_frame, omega_body=slew.rate(t_frame), q_body_prior=q_prior)
     assert res.mode == "track" and len(res.samples) == 11 and "prior" in res.status
     assert max(nees(s, slew.q(s.t_s)) for s in res.samples) < 25.0
@@ -246,3 +246,14 @@ def test_bad_input(cam, nav):
         StarTracker(cam, nav, centroid_sigma_px=-1.0)
     with pytest.raises(TypeError, match="camera"):
         StarTracker("paper000", nav)
+
+
+def test_multi_exposure_frame_without_a_usable_rate_is_refused(cam, nav):
+    # A prior attitude without a gyro says nothing about the rate: the N spots of a star cannot be told
+    # apart, so the frame must not be tracked (it would pile every spot onto one instant).
+    rng = np.random.default_rng(31)
+    slew = Slew(rng, 15.0)
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX)
+    fr, times, t_frame = frame(cam, nav, slew, 2, 16, rng)
+    res = st.process_frame(fr.xy, fr.intensity, times, t_frame, q_body_prior=slew.q(t_frame))
+    assert res.mode == "lost" and res.samples == [] and "too uncertain" in res.status

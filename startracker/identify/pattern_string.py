@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from startracker.identify.frame import Frame, IdentifyOptions
-from startracker.identify.verification import Match, best_of, fast_rotation, triangle_false_rate, verify
+from startracker.identify.verification import Match, best_of, triangle_false_rate, verify
 
 __all__ = ["PatternCatalog", "build_pattern_catalog", "identify_pattern_string", "N_LEVELS"]
 

@@ -21,8 +21,9 @@ class IdentificationResult:
         HIP number of each input detection (in the caller's order), −1 when unidentified (false star,
         star not in the catalog, detection off the detector, or failure).
     q_cam_to_icrs : ndarray, shape (4,)
-        Attitude (w, x, y, z), camera frame -> ICRS, from :func:`startracker.attitude.solve_wahba` on
-        all matches; the identity when ``success`` is False.
+        Attitude (w, x, y, z), camera frame -> ICRS, solved on all matches with
+        :func:`startracker.attitude.solve_wahba_single` (the single-problem form of ``solve_wahba``:
+        SVD, QUEST covariance); the identity when ``success`` is False.
     n_matched : int
         Detections identified.
     residual_arcsec : float

@@ -3,8 +3,9 @@
 A hypothesis (some detections paired with navigation stars) gives an attitude (Wahba, SVD). Every
 detection is rotated into ICRS and matched to the nearest navigation star within the verification
 radius (the same as re-projecting the catalog into the image and matching there, but in angle space,
-so it holds across the whole detector), one catalog star per detection; the attitude is refitted on all
-matches and the matching repeated once.
+so it holds across the whole detector), one catalog star per detection; a detection with a second
+catalog star almost as near is ambiguous and left out. The attitude is refitted on all matches and the
+matching repeated once.
 
 Acceptance. A wrong hypothesis built from three detections is a catalog triangle that happens to fit
 the measured one. For a triangle with sides known to ``±ε`` the expected number of such catalog
@@ -18,7 +19,8 @@ measured once per database. Under a wrong attitude each other detection lands wi
 radius ``r`` of some catalog star with probability ``p = ρ_eff π r²``. A hypothesis is accepted with
 ``3 + e`` matches only when ``λ · P(Binomial(n − 3, p) ≥ e) ≤ false_alarm`` (and ``e ≥ 1`` whenever a
 fourth detection exists), so the required number of confirming stars grows with loose tolerances,
-dense catalogs and many detections, and shrinks for precise measurements.
+dense catalogs and many detections, and shrinks for precise measurements. Two different attitudes
+that both pass make the frame ambiguous (:func:`best_of`): failure is reported rather than a coin toss.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ class Match:
     Attributes
     ----------
     rot : ndarray, shape (3, 3)
-        Camera -> ICRS rotation matrix from the last fit.
+        Camera -> ICRS rotation matrix fitted on the first round of matches.
     det : ndarray of int, shape (m,)
         Matched detections (frame indices).
     nav : ndarray of int, shape (m,)
@@ -220,8 +222,6 @@ def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, r
     det2, nav2, dist = match_detections(db, frame.v @ rot.T, tol)
     if len(det2) < n_req:
         return None
-    if len(det2) != len(det) or not (np.array_equal(det2, det) and np.array_equal(nav2, nav)):
-        rot = fast_rotation(frame.v[det2], nav_vec[nav2])
     rms = float(np.sqrt(np.mean(dist * dist)))  # chord ~ angle at these scales
     return Match(rot=rot, det=det2, nav=nav2, n_required=n_req, rms_rad=rms)
 

@@ -1,0 +1,308 @@
+"""Centroids: COM and Gaussian interpolation (paper 002 §3), noise against linearised theory, fidelities."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.special import ndtr
+
+from startracker.catalog import load_catalog
+from startracker.centroid import (
+    CentroidErrorModel,
+    Centroids,
+    calibrate_error_model,
+    extract_centroids,
+    simulate_detections,
+)
+from startracker.imaging import KIND_STAR, SensorModel, background_field, render_expected, render_frame
+from startracker.optics import Camera, camera_preset
+from startracker.photometry import Photometry
+from startracker.rotations import quat_integrate, quat_random
+from startracker.scene import ExposurePlan, compute_scene, scene_from_tracks
+
+TINY = Camera(resolution=(64, 64))
+
+
+def quiet(model, **kw):
+    base = dict(hot_pixel_fraction=0.0, cosmic_ray_rate_per_cm2_s=0.0, debris_rate_per_frame=0.0, prnu_sigma=0.0)
+    base.update(kw)
+    return dataclasses.replace(model, **base)
+
+
+def gaussian_image(shape, x0, y0, sigma, total, background=100.0):
+    """Independent pixel-integrated Gaussian spot (paper 002 eq. 4-5)."""
+    cols = np.arange(shape[1])
+    rows = np.arange(shape[0])
+    gx = ndtr((cols + 0.5 - x0) / sigma) - ndtr((cols - 0.5 - x0) / sigma)
+    gy = ndtr((rows + 0.5 - y0) / sigma) - ndtr((rows - 0.5 - y0) / sigma)
+    return background + total * np.outer(gy, gx)
+
+
+# ------------------------------------------------------------------------------------- exact cases
+def test_noiseless_spot_com_and_gaussian_interpolation_are_exact():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        x0, y0 = rng.uniform(20, 44, 2)
+        img = gaussian_image((64, 64), x0, y0, 1.3, 5.0e4)
+        com = extract_centroids(img, k_sigma=3.0, background="global")
+        assert len(com) == 1
+        np.testing.assert_allclose(com.xy[0], [x0, y0], atol=2e-3)
+        gau = extract_centroids(img, k_sigma=3.0, method="gaussian", psf_sigma_px=1.3, background="global")
+        np.testing.assert_allclose(gau.xy[0], [x0, y0], atol=1e-6)  # exact inversion of eq. 6
+        est = extract_centroids(img, k_sigma=3.0, method="gaussian", background="global")  # σ from the log-parabola
+        np.testing.assert_allclose(est.xy[0], [x0, y0], atol=0.03)
+
+
+def test_high_snr_centroid_error_below_0_05_px():
+    rng = np.random.default_rng(1)
+    cases = [
+        (quiet(SensorModel.preset("paper000_cmos")), ExposurePlan(1, 0.02), 3.0),
+        (quiet(SensorModel.preset("paper000")), ExposurePlan(1, 1e-3), 1.0),
+    ]
+    for model, plan, vmag in cases:
+        err = []
+        for _ in range(60):
+            xy = rng.uniform(24, 40, (1, 2))
+            sc = scene_from_tracks(TINY, plan, xy, [vmag])
+            c = extract_centroids(render_frame(sc, model, rng), saturation_dn=model.saturation_dn)
+            assert not c.saturated[0]
+            err.append(c.xy[0] - xy[0])
+        rms = np.sqrt(np.mean(np.square(err)))
+        assert rms < 0.05, (model.name, rms)
+
+
+def linearised_com_variance(expected_e, x0, y0, var_e, thr_e):
+    """Variance (px², per axis) of a thresholded centre of mass with Gaussian pixel noise.
+
+    Each pixel contributes Y = 1{X > T} X with X ~ N(s, v): E[Y] = s Q + σ φ,
+    E[Y²] = (s² + v) Q + σ (s + T) φ with z = (T − s)/σ. Linearising x̂ = Σ x Y / Σ Y about the means.
+    """
+    s = expected_e
+    sd = np.sqrt(var_e)
+    z = (thr_e - s) / sd
+    q = ndtr(-z)
+    phi = np.exp(-0.5 * z**2) / np.sqrt(2 * np.pi)
+    ey = s * q + sd * phi
+    ey2 = (s**2 + var_e) * q + sd * (s + thr_e) * phi
+    var_y = ey2 - ey**2
+    rows, cols = np.indices(s.shape)
+    tot = ey.sum()
+    return (np.sum((cols - x0) ** 2 * var_y) / tot**2, np.sum((rows - y0) ** 2 * var_y) / tot**2)
+
+
+@pytest.mark.parametrize("read_noise_e", [2.0, 8.0, 25.0])
+def test_centroid_noise_follows_linearised_theory(read_noise_e):
+    """Monte Carlo RMS of the COM matches the linearised theory of a thresholded COM within 15 %."""
+    model = quiet(SensorModel.preset("paper000_cmos"), read_noise_e=read_noise_e, dark_current_e_per_s=0.0,
+                  sky_mag_per_arcsec2=30.0, gain_e_per_dn=1.0)
+    plan = ExposurePlan(1, 0.02)
+    rng = np.random.default_rng(int(read_noise_e))
+    x0, y0 = 31.7, 32.2
+    sc = scene_from_tracks(TINY, plan, [[x0, y0]], [4.5])
+    expected = render_expected(sc, model, include_background=False)
+    bg = background_field(sc, model)
+    var_b = bg.var_e(0, 0) + model.gain_e_per_dn**2 / 12
+    k = 5.0
+    var_x, var_y = linearised_com_variance(expected, x0, y0, expected + var_b, k * np.sqrt(var_b))
+    errs = []
+    for _ in range(400):
+        c = extract_centroids(render_frame(sc, model, rng), k_sigma=k, background="global")
+        errs.append(c.xy[0] - [x0, y0])
+    errs = np.array(errs)
+    rms = np.sqrt(np.mean(errs**2, axis=0))
+    np.testing.assert_allclose(rms, np.sqrt([var_x, var_y]), rtol=0.15)
+
+
+def test_centroid_error_grows_with_noise_and_shrinks_with_signal():
+    """Photon-limited: error ∝ S^-1/2; background-limited: error grows with the read noise."""
+    rng = np.random.default_rng(7)
+    plan = ExposurePlan(1, 0.02)
+
+    def rms(model, vmag, n=200):
+        e = []
+        for _ in range(n):
+            xy = rng.uniform(28, 36, (1, 2))
+            c = extract_centroids(render_frame(scene_from_tracks(TINY, plan, xy, [vmag]), model, rng), background="global")
+            e.append(c.xy[0] - xy[0])
+        return np.sqrt(np.mean(np.square(e)))
+
+    photon = quiet(SensorModel.preset("paper000_cmos"), read_noise_e=0.5, dark_current_e_per_s=0.0,
+                   sky_mag_per_arcsec2=30.0, gain_e_per_dn=0.5, full_well_e=1e7, adc_bits=24)
+    r = np.array([rms(photon, v) for v in (3.0, 5.5)])  # signal ratio 10: error ratio √10
+    assert r[0] / r[1] == pytest.approx(10 ** -0.5, rel=0.2)
+    s = photon.star_pe([5.5], [0.0], 0.02)[0]
+    assert r[1] == pytest.approx(np.sqrt((photon.sigma_px**2 + 1 / 12) / s), rel=0.2)
+    noisy = [rms(dataclasses.replace(photon, read_noise_e=rn), 4.5) for rn in (2.0, 10.0, 30.0)]
+    assert noisy[0] < noisy[1] < noisy[2]
+
+
+def test_gaussian_interpolation_is_noisier_than_com():
+    """Paper 002 §3.3: COM is smoother than Gaussian interpolation (which uses two pixels per axis)."""
+    model = quiet(SensorModel.preset("paper000"))
+    plan = ExposurePlan(1, 1e-3)
+    rng = np.random.default_rng(3)
+    ec, eg = [], []
+    for _ in range(150):
+        xy = rng.uniform(28, 36, (1, 2))
+        img = render_frame(scene_from_tracks(TINY, plan, xy, [3.5]), model, rng)
+        ec.append(extract_centroids(img).xy[0] - xy[0])
+        eg.append(extract_centroids(img, method="gaussian").xy[0] - xy[0])
+    assert np.sqrt(np.mean(np.square(eg))) > 1.3 * np.sqrt(np.mean(np.square(ec)))
+
+
+# ------------------------------------------------------------------------------------- behaviour
+def test_multi_exposure_frame_gives_one_detection_per_spot_brightest_first():
+    cam = Camera(resolution=(256, 256))
+    model = quiet(SensorModel())
+    plan = ExposurePlan(6, 1e-3, frame_period_s=0.1)
+    sc = scene_from_tracks(cam, plan, [[60.0, 128.0], [128.0, 60.0], [180.0, 200.0]], [2.0, 3.0, 3.5],
+                           np.tile([1000.0, 200.0], (3, 1)))
+    img = render_frame(sc, model, np.random.default_rng(0))
+    c = extract_centroids(img, saturation_dn=model.saturation_dn)
+    assert len(c) == 18
+    assert np.all(np.diff(c.intensity) <= 0)
+    truth = sc.xy_mean.reshape(-1, 2)
+    d = np.linalg.norm(c.xy[:, None] - truth[None], axis=-1).min(axis=1)
+    assert d.max() < 0.6
+    assert np.all(c.area >= 1) and c.area.dtype.kind == "i"
+    assert np.all(c.snr > 5)
+    # the six spots of the brightest star are the six brightest detections
+    bright = np.argsort(np.linalg.norm(c.xy[:6, None] - truth[None, :6], axis=-1).min(axis=1))
+    assert len(bright) == 6
+
+
+def test_empty_and_saturated_frames():
+    flat = np.full((64, 64), 100.0, dtype=np.float32)
+    c = extract_centroids(flat)
+    assert isinstance(c, Centroids) and len(c) == 0
+    noise = 100 + np.random.default_rng(0).normal(0, 3, (128, 128))
+    assert len(extract_centroids(noise, k_sigma=8.0)) == 0
+    sat = np.full((64, 64), 4095.0)
+    assert len(extract_centroids(sat, saturation_dn=4095.0)) == 0
+    blob = flat.copy()
+    blob[30:34, 30:34] = 4095.0
+    c = extract_centroids(blob, saturation_dn=4095.0)
+    assert len(c) == 1 and c.saturated[0] and c.area[0] == 16
+    np.testing.assert_allclose(c.xy[0], [31.5, 31.5])
+    assert extract_centroids(np.zeros((16, 16), dtype=np.uint16)).xy.shape == (0, 2)
+
+
+@pytest.mark.parametrize(
+    "image,kw",
+    [
+        (np.zeros((8, 8, 3)), {}),
+        (np.zeros(64), {}),
+        (np.full((16, 16), np.nan), {}),
+        (np.zeros((16, 16)), dict(k_sigma=0.0)),
+        (np.zeros((16, 16)), dict(k_sigma=float("nan"))),
+        (np.zeros((16, 16)), dict(method="peak")),
+        (np.zeros((16, 16)), dict(min_area_px=0)),
+        (np.zeros((16, 16)), dict(background="median")),
+        (np.zeros((2, 2)), {}),
+    ],
+)
+def test_bad_images_raise_value_error(image, kw):
+    with pytest.raises(ValueError):
+        extract_centroids(image, **kw)
+
+
+def test_bad_simulate_arguments():
+    sc = scene_from_tracks(TINY, ExposurePlan(1, 1e-3), [[30.0, 30.0]], [4.0])
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError):
+        simulate_detections(sc, SensorModel(), rng, fidelity="photons")
+    with pytest.raises(TypeError):
+        simulate_detections(sc, SensorModel(), None)
+    with pytest.raises(ValueError):
+        simulate_detections(sc, SensorModel(), rng, method="gaussian", error_model=CentroidErrorModel(method="com"))
+    with pytest.raises(ValueError):
+        CentroidErrorModel(peak_factor=-1.0)
+
+
+def test_centroid_fidelity_merges_coincident_spots_like_pixels_do():
+    """A still camera with N exposures stacks every star's spots: one detection per star in both fidelities."""
+    cam = Camera(resolution=(256, 256))
+    model = quiet(SensorModel())
+    plan = ExposurePlan(8, 1e-3, frame_period_s=0.1)
+    sc = scene_from_tracks(cam, plan, [[60.0, 128.0], [128.0, 60.0], [200.0, 190.0]], [4.0, 4.5, 5.0])
+    for fidelity in ("pixel", "centroid"):
+        det = simulate_detections(sc, model, np.random.default_rng(1), fidelity)
+        assert len(det) == 3, fidelity
+        assert sorted(det.truth_star) == [0, 1, 2]
+
+
+# ------------------------------------------------------------------------------------- fidelities agree
+def _per_bin_stats(det, sc, bins):
+    n, m = sc.n_exposures, sc.n_stars
+    st = np.flatnonzero(det.truth_kind == KIND_STAR)
+    key = det.truth_exposure[st] * m + det.truth_star[st]
+    _, first = np.unique(key, return_index=True)
+    found = np.zeros(n * m, dtype=bool)
+    found[key[first]] = True
+    err2 = np.full(n * m, np.nan)
+    err2[key[first]] = np.sum((det.xy[st[first]] - det.truth_xy[st[first]]) ** 2, axis=1)
+    vis = sc.visible.reshape(-1)
+    vm = np.tile(sc.vmag, n)
+    out = []
+    for lo, hi in bins:
+        s = vis & (vm >= lo) & (vm < hi)
+        out.append((found[s].sum(), s.sum(), np.nansum(err2[s & found]), (s & found).sum()))
+    return np.array(out, dtype=float), np.sum(det.truth_kind != KIND_STAR)
+
+
+@pytest.mark.parametrize("preset", ["paper000", "paper000_cmos"])
+def test_centroid_fidelity_reproduces_the_pixel_path(preset):
+    """Detection rates per magnitude bin within 0.08, centroid RMS within 25 %, false detections within 35 %."""
+    cam = camera_preset("paper000")
+    cat = load_catalog(7.0 if preset == "paper000" else 7.9)
+    model = SensorModel.preset(preset)
+    if preset == "paper000":
+        rate, plan = np.radians(14.0), ExposurePlan(15, 1e-3)
+        bins = [(-2.0, 5.0), (5.0, 6.0), (6.0, 6.6), (6.6, 7.0)]
+    else:
+        rate, plan = np.radians(0.3), ExposurePlan(1, 0.02)
+        bins = [(-2.0, 6.0), (6.0, 7.0), (7.0, 7.6), (7.6, 7.9)]
+    rng = np.random.default_rng(2024)
+    acc = {"pixel": 0, "centroid": 0}
+    false = {"pixel": [], "centroid": []}
+    for _ in range(6):
+        q0 = quat_random(rng)
+        axis = rng.normal(size=3) * [1, 1, 0.1]
+        omega = rate * axis / np.linalg.norm(axis)
+        sc = compute_scene(cam, cat, lambda t: quat_integrate(np.broadcast_to(q0, (len(t), 4)), omega, t), plan, 0.0)
+        for fid in acc:
+            for _ in range(3):
+                stats, nf = _per_bin_stats(simulate_detections(sc, model, rng, fid), sc, bins)
+                acc[fid] = acc[fid] + stats
+                false[fid].append(nf)
+    p, c = acc["pixel"], acc["centroid"]
+    assert np.all(p[:, 1] > 30)
+    np.testing.assert_allclose(c[:, 0] / c[:, 1], p[:, 0] / p[:, 1], atol=0.08)
+    np.testing.assert_allclose(np.sqrt(c[:, 2] / c[:, 3]), np.sqrt(p[:, 2] / p[:, 3]), rtol=0.25)
+    fp, fc = np.mean(false["pixel"]), np.mean(false["centroid"])
+    assert fc == pytest.approx(fp, rel=0.35, abs=1.0)
+
+
+def test_calibration_fits_a_new_detector():
+    """calibrate_error_model against the pixel path makes the centroid fidelity match for a custom detector."""
+    model = quiet(SensorModel.preset("paper000_cmos"), psf_sigma_px=1.6, read_noise_e=8.0, name="custom",
+                  photometry=Photometry(aperture_diameter_mm=40.0))
+    em = calibrate_error_model(model, np.random.default_rng(0), n_frames=3, smear_px=(0.0, 3.0))
+    assert 0.8 < em.peak_factor < 2.0
+    cam = camera_preset("paper000")
+    plan = ExposurePlan(1, 0.02)
+    rng = np.random.default_rng(1)
+    from startracker.centroid import _grid_scene
+
+    acc = {}
+    for fid in ("pixel", "centroid"):
+        tot = 0
+        for i in range(3):
+            sc = _grid_scene(cam, plan, 6.0, 9.5, 100.0, 64.0, np.random.default_rng(100 + i))
+            tot = tot + _per_bin_stats(simulate_detections(sc, model, rng, fid, error_model=em), sc,
+                                       [(6.0, 7.5), (7.5, 8.5), (8.5, 9.5)])[0]
+        acc[fid] = tot
+    p, c = acc["pixel"], acc["centroid"]
+    np.testing.assert_allclose(c[:, 0] / c[:, 1], p[:, 0] / p[:, 1], atol=0.08)
+    ok = p[:, 3] > 20
+    np.testing.assert_allclose(np.sqrt(c[ok, 2] / c[ok, 3]), np.sqrt(p[ok, 2] / p[ok, 3]), rtol=0.3)

@@ -334,6 +334,14 @@ class AgileSlewEnv(gym.Env):
         )
         return obs.astype(np.float32)
 
+    @staticmethod
+    def _nees(q_true, est) -> float | None:
+        """Normalised estimation error squared of the EKF attitude (3 dof; mean 3 when consistent), None before a fix."""
+        if est.attitude_cov_rad2 is None:
+            return None
+        d = quat_to_rotvec(quat_multiply(quat_conjugate(est.q_body_to_world), q_true))
+        return float(d @ np.linalg.solve(est.attitude_cov_rad2, d))
+
     def _info(self, reward_terms) -> dict:
         q_true = self.spacecraft.q_body_to_world
         est = self.avionics.estimate()
@@ -360,6 +368,7 @@ class AgileSlewEnv(gym.Env):
             "n_wrong_samples_total": self.avionics.n_wrong_samples_total,
             "reacquisition_times_s": self.avionics.reacquisition_times_s,
             "attitude_sigma_arcsec": float(np.degrees(min(est.attitude_sigma_rad, np.pi)) * 3600.0),
+            "ekf_nees": self._nees(q_true, est),
             "reward_pointing": reward_terms[0],
             "reward_effort": reward_terms[1],
             "reward_settle": reward_terms[2],

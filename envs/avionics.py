@@ -104,6 +104,7 @@ class Estimate:
     omega_body: np.ndarray
     attitude_sigma_rad: float
     valid: bool
+    attitude_cov_rad2: np.ndarray | None = None  # (3, 3) body frame, None before the first fix
 
 
 class Avionics:
@@ -379,7 +380,8 @@ class Avionics:
         if self.ekf is None:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
         sig = float(np.max(self.ekf.attitude_sigma_rad))
-        return Estimate(self.ekf.q_body_to_world.copy(), np.asarray(self.ekf.omega_body, float).copy(), sig, True)
+        return Estimate(self.ekf.q_body_to_world.copy(), np.asarray(self.ekf.omega_body, float).copy(), sig, True,
+                        np.array(self.ekf.P[:3, :3], dtype=float))
 
     def render_last_frame(self) -> np.ndarray | None:
         """RGB uint8 image (rows, cols, 3) of the last frame (full render) with detections circled."""

@@ -718,12 +718,14 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
     var_bd = var_b[idx]
     # spots whose threshold regions touch are one component in the pixel path: merge them
     if len(idx) > 1:
-        half_len = 0.5 * length[idx]
-        reach = np.sqrt(det_area / np.pi) + half_len
-        pairs = cKDTree(truth_xy).query_pairs(2.0 * float(reach.max()) + 1.0, output_type="ndarray")
+        # expected threshold radius (without the detection calibration factor) plus half the streak
+        se2 = np.where(kind == KIND_COSMIC_RAY, _COSMIC_SIGMA_PX**2, model.sigma_px**2) + 1.0 / 12.0
+        r_exp = np.sqrt(2.0 * se2 * np.log(np.maximum(peak_e / (k_sigma * np.sqrt(var_bd)), 1.0)))
+        reach = r_exp + 0.5 * length[idx]
+        pairs = cKDTree(truth_xy).query_pairs(2.0 * float(reach.max()) + 1e-9, output_type="ndarray")
         if len(pairs):
             gap = np.linalg.norm(truth_xy[pairs[:, 0]] - truth_xy[pairs[:, 1]], axis=1)
-            pairs = pairs[gap < reach[pairs[:, 0]] + reach[pairs[:, 1]] + 1.0]
+            pairs = pairs[gap < reach[pairs[:, 0]] + reach[pairs[:, 1]]]
         if len(pairs):
             k_det = len(idx)
             graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(k_det, k_det))

@@ -221,9 +221,12 @@ class Avionics:
         n_frames = int(round(duration_s / self.config.frame_period_s))
         stats = self._empty_stats()
         lat = []
+        offsets = []
         for f in range(n_frames):
             tf = t0 + f * self.config.frame_period_s
-            samples.extend(self._run_frame(tf, (times, quats), rng, omega_hint=omega_meas.mean(axis=0)))
+            new = self._run_frame(tf, (times, quats), rng, omega_hint=omega_meas.mean(axis=0))
+            samples.extend(new)
+            offsets.extend([self._last_time_error_s] * len(new))
             lat.append(self.last_stats["matching_latency_ms"])
             stats["n_stars"] = self.last_stats["n_stars"]
             stats["exposures_per_frame"] = self.last_stats["exposures_per_frame"]
@@ -232,7 +235,7 @@ class Avionics:
         stats["n_attitude_samples"] = len(samples)
         stats["update_rate_hz"] = len(samples) / duration_s
         stats["lost_lock_events"] = self._lost_events
-        stats["n_wrong_samples"] = self._count_wrong(samples, times, quats)
+        stats["n_wrong_samples"] = self._count_wrong(samples, np.array(offsets), times, quats)
         stats["faults_active"] = self.faults.active_kinds(t0, times[-1]) if self.faults else []
 
         if self.ekf is None:
@@ -278,11 +281,15 @@ class Avionics:
                 self._rejected_frames = 0
                 self._filter_resets += 1
 
-    def _count_wrong(self, samples, times, quats) -> int:
-        """Attitude samples reported valid whose true error exceeds max(5σ, 20″): confident wrong answers."""
+    def _count_wrong(self, samples, time_errors_s, times, quats) -> int:
+        """Attitude samples reported valid whose true error exceeds max(5σ, 20″): confident wrong answers.
+
+        Each sample is judged against the truth at its true exposure instant: an injected timestamp error
+        (``time_jitter``) makes the time tag wrong, not the attitude, and shows in the filter's error instead.
+        """
         if not samples:
             return 0
-        t = np.array([s.t_s for s in samples])
+        t = np.array([s.t_s for s in samples]) - time_errors_s
         inside = (t >= times[0]) & (t <= times[-1])
         if not inside.any():
             return 0
@@ -307,6 +314,7 @@ class Avionics:
         """Image, detect and process one frame starting at ``t_frame``; returns the attitude samples."""
         cfg = self.config
         t_mid = t_frame + 0.5 * cfg.frame_period_s
+        self._last_time_error_s = 0.0
         if self.faults and self.faults.frame_dropped(t_mid):
             self.last_stats = dict(self._empty_stats(), exposures_per_frame=0)
             return []
@@ -332,11 +340,13 @@ class Avionics:
         scene = compute_scene(self.camera, self.catalog, truth, plan, t_frame, bright_bodies=bodies)
         det = simulate_detections(scene, self.sensor_model, rng, fidelity=cfg.fidelity)
         t_exp = plan.exposure_mid_times(t_frame)
+        self._last_time_error_s = 0.0
         if len(det) and np.any(det.intensity <= 0):
             det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
         if self.faults:
             det = self.faults.modify_detections(det, t_mid, rng, self.camera.resolution)
-            t_exp = t_exp + self.faults.timestamp_error_s(t_mid, rng)
+            self._last_time_error_s = self.faults.timestamp_error_s(t_mid, rng)
+            t_exp = t_exp + self._last_time_error_s
         prev_mode = self.tracker_mode
         res = self.tracker.process_frame(
             det.xy,

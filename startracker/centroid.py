@@ -347,7 +347,7 @@ def _measure(labels, n_comp, rows, cols, signal, sat_px, noise_px, method, looku
         y[comp_of_pk] = gy
     keep = np.flatnonzero((area >= min_area_px) & (inten > 0))
     keep = keep[np.argsort(-inten[keep], kind="stable")]
-    snr = inten[keep] / (noise[keep] * np.sqrt(area[keep]))
+    snr = inten[keep] / (np.maximum(noise[keep], 1e-9) * np.sqrt(area[keep]))
     return keep, np.column_stack([x[keep], y[keep]]), inten[keep], area[keep], sat[keep], peak[keep], snr
 
 
@@ -446,8 +446,8 @@ def detections_from_sparse(sf, method: str = "com", *, min_area_px: int = 1, psf
     _check_method(method)
     min_area_px = _check_min_area(min_area_px)
     above = np.flatnonzero(sf.dn > sf.threshold_dn)
-    bg_c = float(np.median(sf.background_dn)) if len(sf.background_dn) else float("nan")
-    sig_c = float(np.median((sf.threshold_dn - sf.background_dn) / sf.k_sigma)) if len(sf.background_dn) else float("nan")
+    bg_c = sf.background_dn_centre
+    sig_c = sf.noise_dn_centre
     if len(above) == 0:
         return Centroids.empty(bg_c, sig_c, with_truth=True)
     a = len(above)

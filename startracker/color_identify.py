@@ -9,7 +9,9 @@ Wei & Li 2022, cited by paper 004 as the reason for the 3CMOS sensor). Fewer can
 triangles and hypotheses (speed); the expected number of wrong catalog triangles ``λ`` of the false-alarm
 rule is multiplied by the three detections' colour pass rates, so fewer confirming stars are required
 (robustness with few stars or loose position tolerances). Detections without a colour (NaN ratio) are
-not pruned. Verification is the common one of :mod:`startracker.identify.verification`.
+not pruned. Verification is the common one of :mod:`startracker.identify.verification`. If the pruned
+search finds nothing, the colour-blind pyramid runs on the same frame (``fallback``), so a wild colour
+measurement cannot lose a frame the monochrome method identifies.
 
 This module sits after :mod:`startracker.identify` in the import order (``color`` comes before
 ``centroid`` and ``identify`` and cannot import them).
@@ -178,7 +180,7 @@ def _pyramid_color(cdb: ColorDatabase, frame: Frame, opts: IdentifyOptions, det_
 
 def identify_color(xy, camera: Camera, catalog: StarCatalog, color_ratio, color_sigma=0.1, intensities=None,
                    database: ColorDatabase | None = None, *, color_model_sigma: float = 0.1,
-                   color_tol_sigmas: float = 3.0, return_pruning: bool = False, **options):
+                   color_tol_sigmas: float = 3.0, fallback: bool = True, return_pruning: bool = False, **options):
     """Lost-in-space identification with the colour ratio as an extra feature (pyramid).
 
     Parameters
@@ -201,6 +203,11 @@ def identify_color(xy, camera: Camera, catalog: StarCatalog, color_ratio, color_
         errors, non-Planck spectra), added in quadrature.
     color_tol_sigmas : float
         Half-width of the colour window in combined σ (> 0).
+    fallback : bool
+        When the colour-pruned search finds nothing, run the plain (colour-blind) pyramid on the same
+        frame, so a colour measurement far outside its window (blend, saturation, a 5σ draw) cannot lose a
+        frame the monochrome method identifies. The result's ``method`` then reads
+        ``"pyramid+color:fallback"``.
     return_pruning : bool
         Also return a :class:`ColorPruning`.
     **options
@@ -209,7 +216,8 @@ def identify_color(xy, camera: Camera, catalog: StarCatalog, color_ratio, color_
     Returns
     -------
     IdentificationResult
-        ``method = "pyramid+color"``; failure is a status, never an exception.
+        ``method`` is ``"pyramid+color"`` (or ``"pyramid+color:fallback"``); failure is a status, never an
+        exception.
     ColorPruning
         Only with ``return_pruning``.
     """
@@ -250,27 +258,33 @@ def identify_color(xy, camera: Camera, catalog: StarCatalog, color_ratio, color_
     def done(result):
         return (result, stats) if return_pruning else result
 
-    def failure(status, n_req=0, n_hyp=0):
+    def failure(status, n_req=0, n_hyp=0, method="pyramid+color"):
         return done(IdentificationResult(
             success=False, star_ids=star_ids, q_cam_to_icrs=_IDENTITY.copy(), n_matched=0,
             residual_arcsec=float("inf"), latency_ms=(time.perf_counter() - t0) * 1e3, status=status,
-            method="pyramid+color", n_required=n_req, n_hypotheses=n_hyp, covariance_rad2=np.diag([np.inf] * 3)))
+            method=method, n_required=n_req, n_hypotheses=n_hyp, covariance_rad2=np.diag([np.inf] * 3)))
 
     db = database.db
     if frame.n < 3:
         return failure("fewer than 3 usable detections")
     if len(db.pairs) == 0 or db.mean_stars_per_fov < 1.0:
         return failure(f"catalog too sparse for the field of view ({db.mean_stars_per_fov:.2f} stars per frame)")
+    method = "pyramid+color"
     match, status, n_hyp = _pyramid_color(database, frame, opts, det_ratio, det_tol, stats)
+    if match is None and fallback:
+        method = "pyramid+color:fallback"
+        none = np.full(frame.n, np.nan)
+        match, status, n_hyp2 = _pyramid_color(database, frame, opts, none, det_tol, ColorPruning())
+        n_hyp += n_hyp2
     if match is None:
-        return failure(status, n_hyp=n_hyp)
+        return failure(status, n_hyp=n_hyp, method=method)
     sol = solve_wahba_single(frame.v[match.det], db.nav.vectors[match.nav], sigma_rad=frame.sigma_rad)
     if not sol.success or sol.residual_rms_arcsec > frame.match_tol_rad * RAD_TO_ARCSEC:
-        return failure(f"final attitude rejected: {sol.status}", match.n_required, n_hyp)
+        return failure(f"final attitude rejected: {sol.status}", match.n_required, n_hyp, method)
     star_ids[frame.index[match.det]] = db.nav.hip[match.nav]
     return done(IdentificationResult(
         success=True, star_ids=star_ids, q_cam_to_icrs=sol.q_meas_to_ref, n_matched=int(match.n_matched),
         residual_arcsec=float(sol.residual_rms_arcsec), latency_ms=(time.perf_counter() - t0) * 1e3, status="ok",
-        method="pyramid+color", n_required=int(match.n_required), n_hypotheses=int(n_hyp),
+        method=method, n_required=int(match.n_required), n_hypotheses=int(n_hyp),
         covariance_rad2=sol.covariance_rad2))
 

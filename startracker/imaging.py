@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from types import MappingProxyType
 from typing import Mapping
 
@@ -791,41 +791,56 @@ def _render_windows(spots: _Spots, hw: int, n_cols: int, n_rows: int, min_value:
 
 
 # ----------------------------------------------------------------------------------- pixel values
-def _pixels_to_dn(spot_opt, direct_e, bg: BackgroundField, opt_bg, prnu, hot_e, model: SensorModel, rng):
+def _pixels_to_dn(spot_opt, bg: BackgroundField, opt_bg, prnu, model: SensorModel, rng, *,
+                  hot_at=None, hot_e=None, direct_at=None, direct_e=None, dtype=np.float64):
     """Random DN of pixels given their expected signals (shared by the full-frame and sparse paths).
 
-    spot_opt : intensified -> randomised spot charge (e⁻); CMOS -> expected star photoelectrons.
-    direct_e : charge deposited directly (cosmic rays), e⁻.
-    opt_bg : optical background photoelectrons (``bg.optical_pe`` at the pixels).
+    Parameters
+    ----------
+    spot_opt : ndarray, shape (U,)
+        Intensified: the randomised spot charge, e⁻; CMOS: the expected star photoelectrons.
+    opt_bg : float or ndarray, shape (U,)
+        Optical background photoelectrons (``bg.optical_pe`` at the pixels).
+    prnu : ndarray, shape (U,) or None
+    hot_at, hot_e : indices into the U pixels and their extra dark charge (hot pixels), e⁻.
+    direct_at, direct_e : indices and charge deposited directly (cosmic rays), e⁻.
     """
     g = model.intensifier_gain
-    gain_px = 1.0 if prnu is None else 1.0 + prnu
-    dark = bg.dark_e + hot_e
+    u = spot_opt.shape[0]
+    base_var = bg.dark_e + bg.read_var_e2
+    z = rng.standard_normal(u, dtype=dtype)
     if model.intensified:
-        q = spot_opt + g * opt_bg
-        mean = gain_px * q + dark
-        var = bg.enf2_c * q + dark + bg.read_var_e2
-        e = mean + np.sqrt(var) * rng.standard_normal(np.shape(mean))
+        q = spot_opt + g * opt_bg if np.ndim(opt_bg) or opt_bg != 0 else spot_opt.copy()
+        sd = np.sqrt(bg.enf2_c * q + base_var)
+        if prnu is not None:
+            q *= 1.0 + prnu
+        e = q
+        e += bg.dark_e
+        e += sd * z
     else:
-        mean = gain_px * g * opt_bg + dark
-        var = bg.enf2_c * g * opt_bg + dark + bg.read_var_e2
-        e = mean + np.sqrt(var) * rng.standard_normal(np.shape(mean))
+        b = g * opt_bg
+        sd = np.sqrt(bg.enf2_c * b + base_var)
+        e = sd * z
+        e += (b * (1.0 + prnu) if prnu is not None else b) + bg.dark_e
         nz = np.flatnonzero(spot_opt > 0)
         if len(nz):
             n_pe = rng.poisson(spot_opt[nz])
             k = model.gamma_shape_per_pe
-            if g == 1.0 and math.isinf(k):
-                charge = n_pe.astype(np.float64)
-            elif math.isinf(k):
-                charge = g * n_pe
+            if math.isinf(k):
+                charge = g * n_pe.astype(np.float64)
             else:
                 charge = rng.gamma(np.maximum(k * n_pe, 1e-300), g / k) * (n_pe > 0)
-            e[nz] += (gain_px[nz] if np.ndim(gain_px) else gain_px) * charge
-    e = e + direct_e
+            e[nz] += (1.0 + prnu[nz]) * charge if prnu is not None else charge
+    if hot_at is not None and len(hot_at):
+        e[hot_at] += hot_e + np.sqrt(hot_e) * rng.standard_normal(len(hot_at))
+    if direct_at is not None and len(direct_at):
+        e[direct_at] += direct_e
     np.minimum(e, model.full_well_e, out=e)
-    dn = np.rint(e / model.gain_e_per_dn + model.bias_dn)
-    np.clip(dn, 0.0, model.adc_max_dn, out=dn)
-    return dn
+    e *= 1.0 / model.gain_e_per_dn
+    e += model.bias_dn
+    np.rint(e, out=e)
+    np.clip(e, 0.0, model.adc_max_dn, out=e)
+    return e
 
 
 def _check_rng(rng):
@@ -878,8 +893,8 @@ def render_frame(scene: Scene, model: SensorModel, rng: np.random.Generator, *, 
     n_cols, n_rows = scene.camera.resolution
     n_px = n_cols * n_rows
     bg = background_field(scene, model)
-    spot = np.zeros(n_px)
-    direct = np.zeros(n_px)
+    spot = np.zeros(n_px, dtype=np.float32)
+    direct = np.zeros(n_px, dtype=np.float32) if cosmic is not None else None
     if optical is not None:
         hw = _window_half_widths(optical, bg, model.intensifier_gain, _FULL_FLOOR)
         if model.intensified:
@@ -890,11 +905,14 @@ def render_frame(scene: Scene, model: SensorModel, rng: np.random.Generator, *, 
         lin, val, _ = _render_windows(cosmic, 3, n_cols, n_rows)
         np.add.at(direct, lin, val)
     prnu, hot_idx, hot_rate = fixed_pattern(model, scene.camera.resolution)
-    hot_e = np.zeros(n_px)
-    hot_e[hot_idx] = hot_rate * scene.plan.integration_window_s
-    rows, cols = np.divmod(np.arange(n_px), n_cols)
-    dn = _pixels_to_dn(spot, direct, bg, bg.optical_pe(cols, rows), prnu, hot_e, model, rng)
-    return dn.reshape(n_rows, n_cols).astype(np.float32)
+    if bg.flat:
+        opt = max(bg.opt0, 0.0)
+    else:
+        opt = bg.optical_pe(np.arange(n_cols, dtype=np.float32)[None, :], np.arange(n_rows, dtype=np.float32)[:, None]).astype(np.float32).ravel()
+    d_at = np.flatnonzero(direct) if cosmic is not None else None
+    dn = _pixels_to_dn(spot, bg, opt, prnu, model, rng, hot_at=hot_idx, hot_e=hot_rate * scene.plan.integration_window_s,
+                       direct_at=d_at, direct_e=None if d_at is None else direct[d_at], dtype=np.float32)
+    return dn.reshape(n_rows, n_cols).astype(np.float32, copy=False)
 
 
 def render_expected(scene: Scene, model: SensorModel, *, include_background: bool = True,
@@ -1010,12 +1028,12 @@ class SparseFrame:
     entry_e : ndarray, shape (E,)
         Expected charge that source puts in that pixel, e⁻ (for truth labels).
     k_sigma : float
+    background_dn_centre, noise_dn_centre : float
+        Background level and σ at the principal point, DN.
     """
 
     shape: tuple
     lin: np.ndarray
-    rows: np.ndarray
-    cols: np.ndarray
     dn: np.ndarray
     background_dn: np.ndarray
     threshold_dn: np.ndarray
@@ -1026,6 +1044,20 @@ class SparseFrame:
     entry_e: np.ndarray
     k_sigma: float
     _index: _PixelIndex
+    background_dn_centre: float = float("nan")
+    noise_dn_centre: float = float("nan")
+
+    @cached_property
+    def _rows_cols(self):
+        return np.divmod(self.lin, self.shape[1])
+
+    @property
+    def rows(self) -> np.ndarray:
+        return self._rows_cols[0]
+
+    @property
+    def cols(self) -> np.ndarray:
+        return self._rows_cols[1]
 
     def pixel_ids(self, rows, cols) -> np.ndarray:
         """Compact ids of pixels (−1 where not in the sparse set or off the detector)."""
@@ -1117,27 +1149,26 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
     hot_e_all = hot_rate * scene.plan.integration_window_s
     q0 = len(table["kind"])
 
-    lins, spot_vals, dir_vals, srcs, exp_e = [], [], [], [], []
+    lins, srcs, exp_e = [], [], []
+    opt_val = dir_val = None
     if optical is not None:
         hw = _window_half_widths(optical, bg, model.intensifier_gain, _SPARSE_FLOOR)
         if model.intensified:
             _randomize_intensified(optical, model, rng)
-        # drop window pixels whose expected light is below a tenth of the background noise (units of val)
+        # drop window pixels whose expected light is below _SPARSE_FLOOR of the background noise (units of val)
         floor_e = _SPARSE_FLOOR * math.sqrt(float(bg.var_e(bg.cx, bg.cy)))
-        lin, val, src = _render_bucketed(optical, hw, n_cols, n_rows,
-                                         floor_e if model.intensified else floor_e / model.intensifier_gain)
+        lin, opt_val, src = _render_bucketed(optical, hw, n_cols, n_rows,
+                                             floor_e if model.intensified else floor_e / model.intensifier_gain)
         lins.append(lin)
-        spot_vals.append(val)
-        dir_vals.append(np.zeros(len(lin)))
         srcs.append(src)
-        exp_e.append(val if model.intensified else val * model.intensifier_gain)
+        exp_e.append(opt_val if model.intensified else opt_val * model.intensifier_gain)
+    n_opt = len(opt_val) if opt_val is not None else 0
     if cosmic is not None:
-        lin, val, src = _render_windows(cosmic, 3, n_cols, n_rows)
+        lin, dir_val, src = _render_windows(cosmic, 3, n_cols, n_rows)
         lins.append(lin)
-        spot_vals.append(np.zeros(len(lin)))
-        dir_vals.append(val)
         srcs.append(src)
-        exp_e.append(val)
+        exp_e.append(dir_val)
+    n_dir = len(dir_val) if dir_val is not None else 0
     # hot pixels with their 3x3 neighbourhoods
     n_hot = len(hot_idx)
     if n_hot:
@@ -1147,8 +1178,6 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         ok = (nr >= 0) & (nr < n_rows) & (nc >= 0) & (nc < n_cols)
         centre = np.tile(np.arange(9) == 4, n_hot)
         lins.append((nr * n_cols + nc)[ok])
-        spot_vals.append(np.zeros(int(ok.sum())))
-        dir_vals.append(np.zeros(int(ok.sum())))
         srcs.append(np.repeat(q0 + np.arange(n_hot), 9)[ok])
         exp_e.append(np.where(centre, np.repeat(hot_e_all, 9), 0.0)[ok])
     q1 = q0 + n_hot
@@ -1159,7 +1188,7 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
     else:
         f_lin, f_dn = np.zeros(0, dtype=np.int64), np.zeros(0)
     n_base = int(sum(len(v) for v in lins))
-    if len(f_lin):
+    if len(f_lin) > 1:
         f_lin, first = np.unique(f_lin, return_index=True)
         f_dn = f_dn[first]
     n_false = len(f_lin)
@@ -1169,35 +1198,36 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         nc = (fc[:, None] + _NEIGHBOURS_3x3[None, :, 1]).ravel()
         ok = (nr >= 0) & (nr < n_rows) & (nc >= 0) & (nc < n_cols)
         lins.append((nr * n_cols + nc)[ok])
-        spot_vals.append(np.zeros(int(ok.sum())))
-        dir_vals.append(np.zeros(int(ok.sum())))
         srcs.append(np.repeat(q1 + np.arange(n_false), 9)[ok])
-        centre = np.tile(np.arange(9) == 4, n_false)
-        exp_e.append(np.where(centre, 1.0, 0.0)[ok])
+        exp_e.append(np.where(np.tile(np.arange(9) == 4, n_false), 1.0, 0.0)[ok])
 
     if lins:
-        all_lin = np.concatenate(lins)
-        all_spot = np.concatenate(spot_vals)
-        all_dir = np.concatenate(dir_vals)
-        all_src = np.concatenate(srcs)
-        all_exp = np.concatenate(exp_e)
+        all_lin = np.concatenate(lins) if len(lins) > 1 else lins[0]
+        all_src = np.concatenate(srcs) if len(srcs) > 1 else srcs[0]
+        all_exp = np.concatenate(exp_e) if len(exp_e) > 1 else exp_e[0].copy()
     else:
         all_lin = np.zeros(0, dtype=np.int64)
-        all_spot = all_dir = all_exp = np.zeros(0)
+        all_exp = np.zeros(0)
         all_src = np.zeros(0, dtype=np.int64)
     index = _PixelIndex(n_px)
     uniq, inv = index.unique(all_lin)
     u = len(uniq)
-    spot_u = np.bincount(inv, all_spot, minlength=u)
-    dir_u = np.bincount(inv, all_dir, minlength=u) if cosmic is not None else 0.0
-    rows, cols = np.divmod(uniq, n_cols)
-    hot_u = np.zeros(u)
-    if n_hot:
-        pos = index.contains(hot_idx)
-        hot_u[pos[pos >= 0]] = hot_e_all[pos >= 0]
+    spot_u = np.bincount(inv[:n_opt], opt_val, minlength=u) if n_opt else np.zeros(u)
+    hot_pos = index.contains(hot_idx) if n_hot else np.zeros(0, dtype=np.int64)
     prnu_u = None if prnu is None else prnu[uniq].astype(np.float64)
-    opt_u = max(bg.opt0, 0.0) if bg.flat else bg.optical_pe(cols, rows)
-    dn = _pixels_to_dn(spot_u, dir_u, bg, opt_u, prnu_u, hot_u, model, rng)
+    if bg.flat:
+        opt_u = max(bg.opt0, 0.0)
+    else:
+        rows_u, cols_u = np.divmod(uniq, n_cols)
+        opt_u = bg.optical_pe(cols_u, rows_u)
+    if n_dir:
+        dir_u = np.bincount(inv[n_opt:n_opt + n_dir], dir_val, minlength=u)
+        d_at = np.flatnonzero(dir_u)
+        d_e = dir_u[d_at]
+    else:
+        d_at = d_e = None
+    dn = _pixels_to_dn(spot_u, bg, opt_u, prnu_u, model, rng, hot_at=hot_pos[hot_pos >= 0],
+                       hot_e=hot_e_all[hot_pos >= 0], direct_at=d_at, direct_e=d_e)
     if n_false:
         f_uid = index.contains(f_lin)
         in_window = np.zeros(u, dtype=bool)
@@ -1227,8 +1257,6 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
     return SparseFrame(
         shape=(n_rows, n_cols),
         lin=uniq,
-        rows=rows,
-        cols=cols,
         dn=dn.astype(np.float32),
         background_dn=mean_dn_u,
         threshold_dn=np.broadcast_to(mean_dn_u + k_sigma * sigma_dn_u, (u,)),
@@ -1239,4 +1267,6 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         entry_e=all_exp,
         k_sigma=k_sigma,
         _index=index,
+        background_dn_centre=float(bg.mean_dn(bg.cx, bg.cy)),
+        noise_dn_centre=float(bg.sigma_dn(bg.cx, bg.cy)),
     )

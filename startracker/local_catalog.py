@@ -188,35 +188,61 @@ class PairTable:
             a = kv.sorted_values  # the same values (already sorted): share the array
         return cls(tuple(heads), np.asarray(first)[order], np.asarray(second)[order], a, kv)
 
-    def query_many(self, lo_rad, hi_rad) -> tuple[np.ndarray, np.ndarray]:
-        """All (query, pair row) with the pair's angle in ``[lo, hi]``; rows index ``first``/``second``."""
+    def query_many(self, lo_rad, hi_rad, search: str = "kvector") -> tuple[np.ndarray, np.ndarray]:
+        """All (query, pair row) with the pair's angle in ``[lo, hi]``; rows index ``first``/``second``.
+
+        Parameters
+        ----------
+        lo_rad, hi_rad : array_like, shape (Q,) or scalar
+        search : {"kvector", "scan"}
+            ``"kvector"``: the k-vector range search (O(1) per query). ``"scan"``: compare every stored
+            angle (O(P) per query), the conventional search whose cost grows with the catalog, kept as the
+            peer of the catalog-size experiment (paper 001 Fig. 20). Both return the same rows.
+        """
         lo = np.atleast_1d(np.asarray(lo_rad, dtype=np.float64))
+        hi = np.atleast_1d(np.asarray(hi_rad, dtype=np.float64))
+        if search not in ("kvector", "scan"):
+            raise ValueError(f"search must be 'kvector' or 'scan', got {search!r}")
         if self.kvector is None:
             return np.empty(0, np.int64), np.empty(0, np.int64)
-        qi, rows = self.kvector.query_many(lo, np.atleast_1d(np.asarray(hi_rad, dtype=np.float64)))
+        if search == "scan":
+            lo, hi = np.broadcast_arrays(lo, hi)
+            qs, rows = [], []
+            for q in range(len(lo)):  # one pass over the whole table per query: that is the point
+                r = np.flatnonzero((self.angle_rad >= lo[q]) & (self.angle_rad <= hi[q]))
+                qs.append(np.full(len(r), q, np.int64))
+                rows.append(r)
+            return np.concatenate(qs), np.concatenate(rows)
+        qi, rows = self.kvector.query_many(lo, hi)
         return qi, rows  # kvector was built on the sorted angles, so its "original" index is the row
 
 
-def _pairs_between(vec_a, idx_a, vec_b, idx_b, lo_rad, hi_rad, exclude_same: bool):
-    """Directed pairs (a, b) with lo <= angle <= hi, chunked dense dot products."""
+def _pairs_between(vec_a, idx_a, vec_b, idx_b, lo_rad, hi_rad, same_set: bool):
+    """Directed pairs (a, b), a != b, with lo <= angle <= hi, by chunked dense dot products.
+
+    With ``same_set`` (the within-FoV set: ``vec_a is vec_b``) only a < b is computed and mirrored.
+    The angle is ``arccos`` of the dot product: its rounding error, 1e-16 / sin θ, stays far below any
+    matching tolerance for the separations kept (close doubles are removed from navigation catalogs).
+    """
     cos_hi, cos_lo = np.cos(min(np.pi, hi_rad)), np.cos(max(0.0, lo_rad))
     fa, fb, ang = [np.empty(0, np.int32)], [np.empty(0, np.int32)], [np.empty(0)]
     for s in range(0, len(vec_a), _CHUNK):
-        c = vec_a[s : s + _CHUNK] @ vec_b.T
-        ok = (c >= cos_hi - 1e-12) & (c <= cos_lo + 1e-12)
+        b_from = s if same_set else 0
+        c = vec_a[s : s + _CHUNK] @ vec_b[b_from:].T
+        ok = (c >= cos_hi) & (c <= cos_lo)
+        if same_set:
+            ok &= np.arange(s, s + len(c))[:, None] < np.arange(b_from, len(vec_b))[None, :]
         i, j = np.nonzero(ok)
-        if exclude_same:
-            keep = idx_a[s + i] != idx_b[j]
-            i, j = i[keep], j[keep]
-        va, vb = vec_a[s + i], vec_b[j]
-        cr = np.stack([va[:, 1] * vb[:, 2] - va[:, 2] * vb[:, 1], va[:, 2] * vb[:, 0] - va[:, 0] * vb[:, 2],
-                       va[:, 0] * vb[:, 1] - va[:, 1] * vb[:, 0]], axis=1)
-        a = np.arctan2(np.linalg.norm(cr, axis=1), np.sum(va * vb, axis=1))
-        keep = (a >= lo_rad) & (a <= hi_rad)
-        fa.append(idx_a[s + i[keep]].astype(np.int32))
-        fb.append(idx_b[j[keep]].astype(np.int32))
+        a = np.arccos(np.clip(c[i, j], -1.0, 1.0))
+        ia, jb = idx_a[s + i].astype(np.int32), idx_b[b_from + j].astype(np.int32)
+        keep = ia != jb
+        fa.append(ia[keep])
+        fb.append(jb[keep])
         ang.append(a[keep])
-    return np.concatenate(fa), np.concatenate(fb), np.concatenate(ang)
+    fa, fb, ang = np.concatenate(fa), np.concatenate(fb), np.concatenate(ang)
+    if same_set:
+        fa, fb, ang = np.concatenate([fa, fb]), np.concatenate([fb, fa]), np.concatenate([ang, ang])
+    return fa, fb, ang
 
 
 @dataclass(frozen=True, eq=False)
@@ -292,7 +318,7 @@ class LocalCatalog:
                 else:
                     lo = max(0.0, ang[k, l] - hd[k] - hd[l] - margin_rad)
                     hi = min(np.pi, ang[k, l] + hd[k] + hd[l] + margin_rad)
-                fa, fb, a = _pairs_between(vec[sk], sk, vec[sl], sl, lo, hi, exclude_same=True)
+                fa, fb, a = _pairs_between(vec[sk], sk, vec[sl], sl, lo, hi, same_set=k == l)
                 tables[(k, l)] = PairTable.from_pairs((k, l), fa, fb, a)
         return cls(catalog, scopes, tuple(star_sets), tables, float(margin_rad))
 

@@ -155,6 +155,9 @@ class InertialAidedMatcher:
         Accepted probability of a wrong identification per frame: a triangle alone (3 matches) is accepted
         only when the expected number of chance catalog triangles over the triangles tried is below it,
         else further detections must confirm (as in the lost-in-space verification).
+    pair_search : {"kvector", "scan"}
+        Range search in the argument sets: the k-vector, or a scan of every pair (the conventional search,
+        for comparing catalog sizes as paper 001 Fig. 20 does).
     """
 
     def __init__(
@@ -174,6 +177,7 @@ class InertialAidedMatcher:
         retry_all_sky: bool = False,
         installation_error_rad: float = 0.0,
         false_alarm: float = 1e-3,
+        pair_search: str = "kvector",
     ):
         if not isinstance(sensor, MultiFovSensor):
             raise TypeError("sensor must be a MultiFovSensor")
@@ -198,6 +202,9 @@ class InertialAidedMatcher:
         if not (0.0 < false_alarm < 1.0):
             raise ValueError(f"false_alarm must be in (0, 1), got {false_alarm}")
         self.false_alarm = float(false_alarm)
+        if pair_search not in ("kvector", "scan"):
+            raise ValueError(f"pair_search must be 'kvector' or 'scan', got {pair_search!r}")
+        self.pair_search = pair_search
         if not np.isfinite(installation_error_rad) or installation_error_rad < 0:
             raise ValueError(f"installation_error_rad must be >= 0, got {installation_error_rad}")
         if not np.isfinite(verify_mag_margin) or verify_mag_margin < 0:
@@ -342,7 +349,7 @@ class InertialAidedMatcher:
         """Catalog assignments (a for the first star, b for the second) of one observed pair, and the
         number of pairs a window of this width holds by chance."""
         table, swapped = local.table(hi, hj)
-        _, rows = table.query_many(d - self.pair_tol_rad, d + self.pair_tol_rad)
+        _, rows = table.query_many(d - self.pair_tol_rad, d + self.pair_tol_rad, search=self.pair_search)
         a, b = table.first[rows], table.second[rows]
         # Pairs expected in the window by chance: the table's mean density over its angle range.
         span = (table.angle_rad[-1] - table.angle_rad[0]) if len(table) else 1.0

@@ -498,8 +498,12 @@ def generate_rotary_table_data(color_camera, rng: np.random.Generator, noise_px:
     else:
         raise ValueError(f"layout must be 'grid' or 'random', got {layout!r}")
     v = rotary_table_vectors(phi1, phi2)
+    if not callable(getattr(color_camera, "project", None)):
+        raise TypeError(f"color_camera must be a ColorCamera, got {type(color_camera).__name__}")
     xy_true, in_frame = color_camera.project(v)
     xy_true = np.asarray(xy_true, float)
+    if xy_true.shape != (3, len(v), 2):
+        raise TypeError(f"color_camera must be a ColorCamera projecting onto 3 channels, got {type(color_camera).__name__}")
     if not np.all(in_frame):
         raise ValueError("range_deg puts the star off a detector; shrink range_deg")
     xy = xy_true + rng.normal(0.0, noise_px, size=xy_true.shape) if noise_px > 0 else xy_true.copy()

@@ -32,15 +32,14 @@ def make_scene(cat, cam, rng, sigma_px=0.5, mag_sigma=0.2, n_false=0, missing=0,
     q = quat_random(rng)
     r = quat_to_matrix(q)  # v_icrs = R v_cam
     v_cam = cat.vectors @ r  # R^T v for every star
-    front = v_cam[:, 2] > 0.5
+    front = v_cam[:, 2] > 0.9
     xy, inside = cam.project(v_cam[front])
-    idx = np.flatnonzero(front)[inside]
-    xy = xy[inside]
+    idx = np.flatnonzero(front)
     o = np.argsort(cat.vmag[idx], kind="stable")
-    idx, xy = idx[o], xy[o]
+    idx, xy, inside = idx[o], xy[o], inside[o]
     d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
-    keep = ~np.triu(d < 2.0, 1).any(axis=0)  # a fainter star within 2 px blends into the brighter
-    idx, xy = idx[keep], xy[keep]
+    inside &= ~np.triu(d < 2.0, 1).any(axis=0)  # a fainter star within 2 px blends into the brighter
+    idx, xy = idx[inside], xy[inside]
     if missing:
         drop = rng.choice(len(idx), size=missing, replace=False)
         idx, xy = np.delete(idx, drop), np.delete(xy, drop, axis=0)

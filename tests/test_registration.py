@@ -246,6 +246,8 @@ def test_bad_input_raises():
         calibrate_registration(np.zeros((10, 3)), np.zeros((10, 3)), principal_point=(500, 500))
     with pytest.raises(ValueError, match="noise_px"):
         generate_rotary_table_data(ColorCamera.paper004(), np.random.default_rng(0), noise_px=-1.0)
+    with pytest.raises(TypeError, match="color_camera"):
+        generate_rotary_table_data(Camera(), np.random.default_rng(0))
     with pytest.raises(ValueError, match="off a detector"):
         generate_rotary_table_data(ColorCamera.paper004(), np.random.default_rng(0), range_deg=(12.0, 6.0))
 

@@ -91,17 +91,18 @@ def simulate_frame(
     boresight = r[:, 2]
     near = catalog.cone_search(boresight, min(camera.half_diagonal_fov_rad * 1.05, np.pi))
     v_cam = catalog.vectors[near] @ r  # R^T v
-    xy, inside = camera.project(v_cam)
-    idx = near[inside]
-    xy = xy[inside]
-    mag = catalog.vmag[idx]
-    o = np.argsort(mag, kind="stable")
-    idx, xy, mag = idx[o], xy[o], mag[o]
+    xy, inside, front = camera.project(v_cam, return_in_front=True)
+    # Blends first, over the whole cone: a faint star next to a brighter one just off the edge is part of
+    # that star's spot, as the catalog of navigation stars has it.
+    idx, xy, inside = near[front], xy[front], inside[front]
+    o = np.argsort(catalog.vmag[idx], kind="stable")
+    idx, xy, inside = idx[o], xy[o], inside[o]
     if len(idx) > 1 and blend_px > 0:
         d = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=-1)
         close = np.triu(d < blend_px, 1)
-        keep = ~close.any(axis=0)
-        idx, xy, mag = idx[keep], xy[keep], mag[keep]
+        inside &= ~close.any(axis=0)
+    idx, xy = idx[inside], xy[inside]
+    mag = catalog.vmag[idx]
     if missing > 0 and len(idx) > 0:
         drop = rng.choice(len(idx), size=min(missing, len(idx)), replace=False)
         keep = np.ones(len(idx), dtype=bool)

@@ -451,16 +451,18 @@ def detections_from_sparse(sf, method: str = "com", *, min_area_px: int = 1, psf
     if len(above) == 0:
         return Centroids.empty(bg_c, sig_c, with_truth=True)
     a = len(above)
-    r = sf.rows[above]
-    c = sf.cols[above]
+    n_rows, n_cols = sf.shape
+    lin_a = sf.lin[above]
+    r, c = np.divmod(lin_a, n_cols)
     pos = np.full(len(sf.lin), -1, dtype=np.int64)
     pos[above] = np.arange(a)
     src_i, dst_i = [], []
     for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):
-        nb = sf.pixel_ids(r + dr, c + dc)
+        inside = np.flatnonzero((r + dr < n_rows) & (c + dc >= 0) & (c + dc < n_cols))
+        nb = sf._index.contains(lin_a[inside] + (dr * n_cols + dc))
         j = np.where(nb >= 0, pos[np.maximum(nb, 0)], -1)
         ok = j >= 0
-        src_i.append(np.flatnonzero(ok))
+        src_i.append(inside[ok])
         dst_i.append(j[ok])
     si = np.concatenate(src_i)
     di = np.concatenate(dst_i)

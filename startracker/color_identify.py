@@ -49,15 +49,18 @@ class ColorDatabase:
     star_ratio : ndarray, shape (n_nav,)
         Expected ``ln(e_red / e_blue)`` of every navigation star (catalog B−V through ``response``).
     response : ChannelResponse
+    sorted_ratio : ndarray, shape (n_nav,)
+        ``star_ratio`` sorted (pass rates of colour windows by binary search).
     """
 
     db: StarDatabase
     star_ratio: np.ndarray
     response: ChannelResponse
+    sorted_ratio: np.ndarray
 
     @property
     def memory_bytes(self) -> int:
-        return int(self.db.memory_bytes + self.star_ratio.nbytes)
+        return int(self.db.memory_bytes + self.star_ratio.nbytes + self.sorted_ratio.nbytes)
 
 
 def build_color_database(catalog: StarCatalog, camera: Camera, response: ChannelResponse = DEFAULT_RESPONSE,
@@ -67,7 +70,7 @@ def build_color_database(catalog: StarCatalog, camera: Camera, response: Channel
         raise TypeError(f"response must be a ChannelResponse, got {type(response).__name__}")
     db = build_database(catalog, camera, **build_kwargs)
     ratio = response.color_ratio(np.clip(db.nav.bv, -0.6, 6.0)).astype(np.float32)
-    return ColorDatabase(db=db, star_ratio=ratio, response=response)
+    return ColorDatabase(db=db, star_ratio=ratio, response=response, sorted_ratio=np.sort(ratio))
 
 
 @dataclass
@@ -121,9 +124,8 @@ class _ColorPairCandidates(PairCandidates):
             self.cache[key] = (ids_p[ok], ids_q[ok])
 
 
-def _pass_rate(star_ratio, det_ratio, det_tol) -> np.ndarray:
-    """Fraction of navigation stars whose colour passes each detection's window, (n,)."""
-    srt = np.sort(star_ratio)
+def _pass_rate(srt, det_ratio, det_tol) -> np.ndarray:
+    """Fraction of navigation stars (sorted ratios ``srt``) whose colour passes each detection's window, (n,)."""
     out = np.ones(len(det_ratio))
     known = np.isfinite(det_ratio)
     lo = np.searchsorted(srt, det_ratio[known] - det_tol[known], side="left")
@@ -140,7 +142,7 @@ def _pyramid_color(cdb: ColorDatabase, frame: Frame, opts: IdentifyOptions, det_
     pool = min(n, opts.max_stars or 12)
     order = np.arange(min(n, max(pool, 4)))
     cands = _ColorPairCandidates(db.pairs, frame, cdb.star_ratio, det_ratio, det_tol, stats)
-    rate = _pass_rate(cdb.star_ratio, det_ratio, det_tol)
+    rate = _pass_rate(cdb.sorted_ratio, det_ratio, det_tol)
     n_stars = float(db.n_stars)
     n_hyp = 0
     ambiguous = False

@@ -294,9 +294,8 @@ class _ThreeAxisSensor:
             else:
                 gm, _ = lfilter([1.0], [1.0, -self._phi], drive, axis=0, zi=(self._phi * self._b_gm)[None, :])
             self._b_gm = gm[-1].copy()
-        else:
-            gm = np.broadcast_to(self._phi ** np.arange(1, k + 1)[:, None] * self._b_gm, (k, 3))
-            self._b_gm = gm[-1].copy()
+        else:  # no Gauss-Markov term: its state is identically zero
+            gm = self._b_gm
         if self._rw_step > 0.0:
             rw = self._b_rw + np.cumsum(self._rw_step * rng.standard_normal((k, 3)), axis=0)
             self._b_rw = rw[-1].copy()

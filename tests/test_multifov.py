@@ -258,6 +258,8 @@ def test_pair_tables_equal_brute_force(sensor45, cat):
         d = float(np.median(table.angle_rad))
         _, rows = table.query_many(d - 1e-3, d + 1e-3)
         assert sorted(rows.tolist()) == np.flatnonzero(np.abs(table.angle_rad - d) <= 1e-3).tolist()
+        _, rows_scan = table.query_many(d - 1e-3, d + 1e-3, search="scan")
+        assert sorted(rows_scan.tolist()) == sorted(rows.tolist())
     assert local.n_stars < 0.05 * len(cat)
 
 

@@ -7,8 +7,8 @@ predicted points are the true spots (W = N·M), the observed points the true spo
 (1 px unless varied), in scan order. r = 6σ by the radius rule of ``startracker.track``.
 
 Timed per call (wall clock, ``time.perf_counter``), all three matchers on the same scenes in the same run,
-interleaved in rotating order, median of 5 calls per scene (3 in Table 3), then median and interquartile
-range over the scenes. ``dkvlut`` includes building both k-vector tables (as the paper's t_c does),
+median of 5 consecutive calls per scene and method (3 in Table 3), the order of the methods rotating from
+scene to scene, then median and interquartile range over the scenes. ``dkvlut`` includes building both k-vector tables (as the paper's t_c does),
 ``kdtree`` includes building the cKDTree, ``brute`` is the all-pairs distance matrix (numpy). Table 3 also
 times the paper's literal "one by one" existing method as a Python loop over observed points, and the
 DKVLUT build alone.
@@ -73,9 +73,9 @@ def one_by_one(pred, obs, r):
 
 
 def time_methods(scenes, r, methods, extra=None, rounds=5):
-    """Wall-clock time (s) per method and scene: median of ``rounds`` calls, methods interleaved in
-    rotating order so that load from other processes hits all of them alike. Also checks that all
-    matchers agree and counts correct matches."""
+    """Wall-clock time (s) per method and scene: median of ``rounds`` consecutive calls (warm caches: the
+    tracker calls its matcher every frame), the methods' order rotating from scene to scene. Also checks
+    that all matchers agree and counts correct matches."""
     funcs = {m: (lambda p, o, rr, m=m: match_stars(p, o, rr, method=m)) for m in methods}
     funcs.update(extra or {})
     names = list(funcs)
@@ -83,16 +83,15 @@ def time_methods(scenes, r, methods, extra=None, rounds=5):
     correct = {m: 0 for m in names}
     resolvable_ok = resolvable_n = total = 0
     for k, (pred, obs, truth) in enumerate(scenes):
-        per = {m: [] for m in names}
         results = {}
-        for j in range(rounds):
-            shift = (k + j) % len(names)
-            for name in names[shift:] + names[:shift]:
+        shift = k % len(names)
+        for name in names[shift:] + names[:shift]:
+            per = []
+            for _ in range(rounds):
                 t0 = time.perf_counter()
                 results[name] = funcs[name](pred, obs, r)
-                per[name].append(time.perf_counter() - t0)
-        for m in names:
-            times[m].append(np.median(per[m]))
+                per.append(time.perf_counter() - t0)
+            times[name].append(np.median(per))
         ref = results[methods[0]]
         for name, res in results.items():
             if not isinstance(res, np.ndarray):
@@ -153,7 +152,7 @@ def main(argv=None):
     cam = camera_preset("paper000")
     cat = load_catalog(6.0)
     print(f"bench_matching: paper 000 camera, {len(cat)} stars V <= 6.0, numpy, {platform.processor() or platform.machine()}")
-    print(f"times: per scene the median of 5 calls, then median over {reps} scenes (IQR = 25th-75th percentile);")
+    print(f"times: per scene the median of 5 consecutive calls, then median over {reps} scenes (IQR = 25th-75th percentile);")
     print("r = 6σ; acc = matched to own spot,")
     print("acc res = same over spots whose nearest other predicted spot is > 1.5 r away")
 

@@ -89,7 +89,7 @@ class AgileSlewEnv(gym.Env):
     |---|---|---|
     | ``task`` | ``"slew"`` | ``"slew"`` or ``"hold"`` |
     | ``control_period_s`` | 0.1 | time between actions, s |
-    | ``camera`` | ``"paper000"`` | camera preset (``paper000``, ``zy3``, ``paper003``, ``paper004``) |
+    | ``camera`` | ``"paper000"`` | camera head: ``paper000``, ``zy3``, ``paper003``, ``paper004`` (monochrome), or ``paper004_3cmos`` (paper 004's 3CMOS colour head: three registered detectors fused at centroid level; ``render()`` shows the registered colour image) |
     | ``frame_rate_hz`` | 10.0 | camera frame rate; the frame period must be a multiple of ``control_period_s`` or divide it |
     | ``exposure_mode`` | ``"multi"`` | ``"single"`` or ``"multi"`` |
     | ``n_exposures`` | ``"adaptive"`` | N per multi-exposure frame: ``"adaptive"`` (from the rate) or an int 1..21 |

@@ -23,11 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from startracker.catalog import load_catalog
-from startracker.centroid import simulate_detections
 from startracker.filter import AttitudeEKF
-from startracker.imaging import SensorModel, render_frame
 from startracker.imu import Gyro, gyro_preset, GYRO_GRADES
-from startracker.optics import camera_preset, CAMERA_PRESETS
 from startracker.rotations import (
     quat_angle_between,
     quat_conjugate,
@@ -37,8 +34,9 @@ from startracker.rotations import (
     quat_rotate,
     quat_to_rotvec,
 )
-from startracker.scene import BrightBody, ExposurePlan, compute_scene
+from startracker.scene import BrightBody, ExposurePlan
 
+from envs.camera_head import HEAD_CAMERAS, make_head
 from envs.faults import FaultSchedule
 from startracker.sensor import StarTracker
 
@@ -58,7 +56,7 @@ class AvionicsConfig:
     control_period_s: float = 0.1
     exposure_mode: str = "multi"
     n_exposures: int | str = "adaptive"
-    exposure_s: float = 1.0e-3
+    exposure_s: float | None = None  # default: the head's (1 ms intensified, 10 ms plain CMOS)
     single_exposure_s: float = 0.02
     max_exposures: int = 21
     identify_method: str = "pyramid"
@@ -70,8 +68,8 @@ class AvionicsConfig:
     keep_images: bool = False
 
     def __post_init__(self):
-        if self.camera not in CAMERA_PRESETS:
-            raise ValueError(f"camera must be one of {sorted(CAMERA_PRESETS)}, got {self.camera!r}")
+        if self.camera not in HEAD_CAMERAS:
+            raise ValueError(f"camera must be one of {HEAD_CAMERAS}, got {self.camera!r}")
         if self.exposure_mode not in ("single", "multi"):
             raise ValueError(f"exposure_mode must be 'single' or 'multi', got {self.exposure_mode!r}")
         n = self.n_exposures
@@ -119,9 +117,10 @@ class Avionics:
         if not isinstance(config, AvionicsConfig):
             raise TypeError("config must be an AvionicsConfig")
         self.config = config
-        self.camera = camera_preset(config.camera)
+        self.head = make_head(config.camera)
+        self.camera = self.head.camera
+        self.exposure_s = config.exposure_s if config.exposure_s is not None else self.head.exposure_s
         self.catalog = load_catalog(mag_limit=config.mag_limit)
-        self.sensor_model = SensorModel.preset("paper000")
         self.gyro_spec = gyro_preset(config.gyro_grade, rate_hz=config.gyro_rate_hz)
         self.tracker = StarTracker(
             self.camera,
@@ -325,10 +324,10 @@ class Avionics:
         elif cfg.n_exposures == "adaptive":
             rate = np.zeros(3) if omega_hint is None else omega_hint
             plan = ExposurePlan.for_rate(rate, self.camera, frame_period_s=cfg.frame_period_s,
-                                         exposure_s=cfg.exposure_s, n_max=cfg.max_exposures)
+                                         exposure_s=self.exposure_s, n_max=cfg.max_exposures)
         else:
             n = int(cfg.n_exposures)
-            plan = ExposurePlan(n_exposures=n, exposure_s=cfg.exposure_s, frame_period_s=cfg.frame_period_s)
+            plan = ExposurePlan(n_exposures=n, exposure_s=self.exposure_s, frame_period_s=cfg.frame_period_s)
         bodies = ()
         if self.faults:
             t_s, q_s = truth
@@ -337,8 +336,7 @@ class Avionics:
             sun = self.faults.sun_direction_world(t_mid, bore, rng)
             if sun is not None:
                 bodies = (BrightBody("sun", tuple(sun)),)
-        scene = compute_scene(self.camera, self.catalog, truth, plan, t_frame, bright_bodies=bodies)
-        det = simulate_detections(scene, self.sensor_model, rng, fidelity=cfg.fidelity)
+        det, _, scene = self.head.detections(self.catalog, truth, plan, t_frame, rng, cfg.fidelity, bodies)
         t_exp = plan.exposure_mid_times(t_frame)
         self._last_time_error_s = 0.0
         if len(det) and np.any(det.intensity <= 0):
@@ -373,18 +371,6 @@ class Avionics:
         )
         return list(res.samples)
 
-    # ------------------------------------------------------------------ pickling
-    def __getstate__(self):
-        # The sensor model holds a read-only mapping proxy (not picklable); it is a preset, rebuilt on load.
-        d = dict(self.__dict__)
-        d["sensor_model"] = self.sensor_model.name
-        return d
-
-    def __setstate__(self, d):
-        d = dict(d)
-        d["sensor_model"] = SensorModel.preset(d["sensor_model"])
-        self.__dict__.update(d)
-
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
         if self.ekf is None:
@@ -394,20 +380,8 @@ class Avionics:
                         np.array(self.ekf.P[:3, :3], dtype=float))
 
     def render_last_frame(self) -> np.ndarray | None:
-        """RGB uint8 image (rows, cols, 3) of the last frame (full render) with detections circled."""
+        """RGB uint8 image (rows, cols, 3) of the last frame (full render), detections boxed; None before a frame."""
         if self._last_frame is None:
             return None
         scene, det, plan = self._last_frame
-        image = render_frame(scene, self.sensor_model, np.random.default_rng(0))
-        lo, hi = np.percentile(image, [50.0, 99.9])
-        g = np.clip((image - lo) / max(hi - lo, 1e-9), 0, 1) ** 0.5
-        rgb = (np.stack([g, g, g], axis=-1) * 255).astype(np.uint8)
-        h, w = g.shape
-        for x, y in np.round(det.xy).astype(int):
-            for dx in range(-6, 7):
-                for dy in (-6, 6):
-                    if 0 <= x + dx < w and 0 <= y + dy < h:
-                        rgb[y + dy, x + dx] = (0, 255, 0)
-                    if 0 <= x + dy < w and 0 <= y + dx < h:
-                        rgb[y + dx, x + dy] = (0, 255, 0)
-        return rgb
+        return self.head.render(scene, det)

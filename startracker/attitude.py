@@ -208,9 +208,11 @@ def solve_wahba_single(v_meas, v_ref, sigma_rad=1e-5) -> WahbaSolution:
     w = sig**-2
     wb = b * w[:, None]
     u, _, vt = np.linalg.svd(r.T @ wb)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        u[:, 2] = -u[:, 2]
     rot = u @ vt
+    (a, b_, c), (d, e, f), (g, h, i) = rot.tolist()
+    if a * (e * i - f * h) - b_ * (d * i - f * g) + c * (d * h - e * g) < 0:  # det(U) det(V) = -1
+        u[:, 2] = -u[:, 2]
+        rot = u @ vt
     wsum = float(w.sum())
     info = wsum * np.eye(3) - wb.T @ b
     if np.linalg.eigvalsh(info)[0] <= 1e-10 * max(wsum, 1e-300):

@@ -33,7 +33,7 @@ Fidelities of :func:`simulate_detections`
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage
@@ -729,9 +729,7 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
             gap = np.linalg.norm(truth_xy[pairs[:, 0]] - truth_xy[pairs[:, 1]], axis=1)
             pairs = pairs[gap < reach[pairs[:, 0]] + reach[pairs[:, 1]]]
         if len(pairs):
-            k_det = len(idx)
-            graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(k_det, k_det))
-            n_grp, grp = connected_components(graph, directed=False)
+            n_grp, grp = _pair_groups(len(idx), pairs)
             w = inten_e
             wsum = np.bincount(grp, w, n_grp)
             out_xy = np.column_stack([np.bincount(grp, w * out_xy[:, 0], n_grp), np.bincount(grp, w * out_xy[:, 1], n_grp)]) / wsum[:, None]
@@ -780,6 +778,23 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
         cat["star"][order].astype(np.int64), cat["exposure"][order].astype(np.int64),
         cat["kind"][order].astype(np.int64), cat["truth_xy"][order],
     )
+
+
+def _pair_groups(n: int, pairs: np.ndarray):
+    """Connected groups of n items linked by pairs (P, 2): min-label propagation (few short chains)."""
+    lab = np.arange(n)
+    i, j = pairs[:, 0], pairs[:, 1]
+    while True:
+        m = np.minimum(lab[i], lab[j])
+        new = lab.copy()
+        np.minimum.at(new, i, m)
+        np.minimum.at(new, j, m)
+        new = new[new]  # pointer jumping
+        if np.array_equal(new, lab):
+            break
+        lab = new
+    uniq, grp = np.unique(lab, return_inverse=True)
+    return len(uniq), grp
 
 
 def _append_singletons(parts, xy, signal_dn, sat, sigma_dn, kind):

@@ -29,8 +29,8 @@ from startracker.catalog import StarCatalog
 from startracker.color import DEFAULT_RESPONSE, ChannelResponse
 from startracker.identify import IdentificationResult, StarDatabase, build_database
 from startracker.identify.frame import Frame, IdentifyOptions, prepare_frame
-from startracker.identify.pyramid import PairCandidates, confirm_fourth, smart_triads, triangles
-from startracker.identify.verification import Match, best_of, triangle_false_rate, verify
+from startracker.identify.pyramid import PairCandidates, smart_triads, triangles
+from startracker.identify.verification import Match, best_of, fast_rotation, triangle_false_rate, verify
 from startracker.optics import Camera
 from startracker.rotations import as_float_array
 
@@ -134,9 +134,25 @@ def _pass_rate(srt, det_ratio, det_tol) -> np.ndarray:
     return out
 
 
+def _confirm_fourth(db, frame: Frame, det3, hyp: np.ndarray, rest: np.ndarray):
+    """Which hypotheses have a fourth detection pointing at a catalog star under the triad attitude.
+
+    (H,) bool and the triad attitudes (H, 3, 3); one k-d tree query for all hypotheses and candidates.
+    """
+    rot = fast_rotation(frame.v[list(det3)][None], db.nav.vectors[hyp])
+    if len(rest) == 0:
+        return np.zeros(len(hyp), dtype=bool), rot
+    w = (rot @ frame.v[rest].T).transpose(0, 2, 1).reshape(-1, 3)
+    reach = 2.0 * float(frame.pair_tol_rad[det3[0], rest].max())
+    dist, _ = db.tree.query(w, k=1, distance_upper_bound=2 * np.sin(reach / 2))
+    return np.isfinite(dist).reshape(len(hyp), len(rest)).any(axis=1), rot
+
+
 def _pyramid_color(cdb: ColorDatabase, frame: Frame, opts: IdentifyOptions, det_ratio, det_tol,
                    stats: ColorPruning) -> tuple[Match | None, str, int]:
-    """:func:`startracker.identify.pyramid.identify_pyramid` with colour-pruned pair windows and λ."""
+    """The pyramid of :func:`startracker.identify.pyramid.identify_pyramid` (Mortari's smart triads, apex
+    opposite the widest window, a fourth star, the common verification) with colour-pruned pair windows
+    and λ. Only the stable public pieces of :mod:`startracker.identify` are used."""
     db = cdb.db
     n = frame.n
     pool = min(n, opts.max_stars or 12)
@@ -159,7 +175,7 @@ def _pyramid_color(cdb: ColorDatabase, frame: Frame, opts: IdentifyOptions, det_
         if len(hyp) == 0:
             continue
         rest = np.delete(order, (i, j, k))
-        ok, rot = confirm_fourth(db, frame, (i, j, k), hyp, rest)
+        ok, rot = _confirm_fourth(db, frame, (i, j, k), hyp, rest)
         if n > 3:
             hyp, rot = hyp[ok], rot[ok]
         if len(hyp) == 0:

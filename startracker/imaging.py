@@ -38,7 +38,8 @@ Rendering paths
   exceeds 0.3 σ of the background noise: a dropped pixel's chance of crossing a 5σ threshold rises
   from 2.9e-7 to at most 1.3e-6, about 0.02 missed crossings per frame of 450 spots), hot pixels and
   cosmic rays, and draws the rest of the background's threshold crossings from its statistics: per
-  cell of a 64×64 grid (one cell when the background is flat), a Poisson number of crossing pixels
+  cell of a grid fine enough that the background changes by < 0.25 DN across a cell (at most 64×64,
+  one cell when the background is flat), a Poisson number of crossing pixels
   with mean ``n_px · P(DN > threshold)``, uniform positions, values from the Gaussian tail above the
   threshold, each with its 3×3 neighbourhood drawn as plain background. Pixels are deduplicated with a
   persistent index buffer (no sort), so overlapping windows share one noisy value. Both paths use
@@ -416,7 +417,10 @@ class BackgroundField:
 
     def optical_pe(self, x, y) -> np.ndarray:
         if self.flat:
-            return np.full(np.broadcast_shapes(np.shape(x), np.shape(y)), max(self.opt0, 0.0))
+            v = max(self.opt0, 0.0)
+            if np.ndim(x) == 0 and np.ndim(y) == 0:
+                return v
+            return np.full(np.broadcast_shapes(np.shape(x), np.shape(y)), v)
         return np.maximum(self.opt0 + self.opt_dx * (np.asarray(x) - self.cx) + self.opt_dy * (np.asarray(y) - self.cy), 0.0)
 
     def mean_e(self, x, y) -> np.ndarray:
@@ -532,18 +536,22 @@ def draw_false_objects(scene: Scene, model: SensorModel, rng: np.random.Generato
     _check_rng(rng)
     cam = scene.camera
     w, h = cam.resolution
-    n_d = int(rng.poisson(model.debris_rate_per_frame))
-    xy0 = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (n_d, 2))
-    ang = rng.uniform(0, 2 * np.pi, n_d)
-    speed = np.exp(rng.uniform(np.log(100.0), np.log(20000.0), n_d))
-    vel = np.stack([np.cos(ang), np.sin(ang)], axis=1) * speed[:, None]
-    vmag = rng.uniform(model.debris_vmag_range[0], model.debris_vmag_range[1], n_d)
     area_cm2 = (w * cam.pixel_size_um * 1e-4) * (h * cam.pixel_size_um * 1e-4)
-    n_c = int(rng.poisson(model.cosmic_ray_rate_per_cm2_s * area_cm2 * scene.plan.integration_window_s))
-    start = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (n_c, 2))
-    a = rng.uniform(0, 2 * np.pi, n_c)
-    length = rng.uniform(0.0, _COSMIC_MAX_LEN_PX, n_c)
-    end = start + np.stack([np.cos(a), np.sin(a)], axis=1) * length[:, None]
+    n_d, n_c = (int(v) for v in rng.poisson([model.debris_rate_per_frame,
+                                               model.cosmic_ray_rate_per_cm2_s * area_cm2 * scene.plan.integration_window_s]))
+    if n_d == 0 and n_c == 0:
+        return FalseObjects.none()
+    size = np.array([w, h], dtype=float)
+    u = rng.random((n_d, 6))  # position (2), direction, log-speed, magnitude, unused
+    xy0 = u[:, :2] * size - 0.5
+    ang = 2 * np.pi * u[:, 2]
+    speed = np.exp(np.log(100.0) + (np.log(20000.0) - np.log(100.0)) * u[:, 3])
+    vel = np.stack([np.cos(ang), np.sin(ang)], axis=1) * speed[:, None]
+    vmag = model.debris_vmag_range[0] + (model.debris_vmag_range[1] - model.debris_vmag_range[0]) * u[:, 4]
+    v = rng.random((n_c, 4))  # position (2), direction, length
+    start = v[:, :2] * size - 0.5
+    a = 2 * np.pi * v[:, 2]
+    end = start + np.stack([np.cos(a), np.sin(a)], axis=1) * (_COSMIC_MAX_LEN_PX * v[:, 3])[:, None]
     charge = model.cosmic_ray_median_e * np.exp(0.6 * rng.standard_normal(n_c))
     return FalseObjects(xy0, vel, vmag, start, end, charge)
 
@@ -788,9 +796,11 @@ def _render_windows(spots: _Spots, hw: int, n_cols: int, n_rows: int, min_value:
     ok = ((rows >= 0) & (rows < n_rows))[:, :, None] & ((cols >= 0) & (cols < n_cols))[:, None, :]
     if min_value > 0:
         ok &= val >= min_value
-    lin = rows[:, :, None] * n_cols + cols[:, None, :]
-    src = np.broadcast_to(spots.source[:, None, None], ok.shape)
-    return lin[ok], val[ok], src[ok]
+    nz = np.flatnonzero(ok)
+    p, rem = np.divmod(nz, wr * wc)
+    r, c = np.divmod(rem, wc)
+    lin = (r_lo[p] + r) * n_cols + (c_lo[p] + c)
+    return lin, val.reshape(-1)[nz], spots.source[p]
 
 
 # ----------------------------------------------------------------------------------- pixel values
@@ -1086,24 +1096,43 @@ def _false_pixels(bg: BackgroundField, k_sigma: float, n_cols: int, n_rows: int,
 
     Returns linear indices (F,) and their DN values (F,).
     """
-    gx = 1 if bg.flat else min(_FALSE_GRID, n_cols)
-    gy = 1 if bg.flat else min(_FALSE_GRID, n_rows)
+    if bg.flat:  # one cell: the crossing probability is the same everywhere
+        mu_e = float(bg.mean_e(bg.cx, bg.cy))
+        sd_e = math.sqrt(float(bg.var_e(bg.cx, bg.cy)))
+        thr = float(bg.threshold_dn(bg.cx, bg.cy, k_sigma))
+        z0 = ((math.floor(thr) + 0.5 - model.bias_dn) * model.gain_e_per_dn - mu_e) / sd_e
+        p = float(ndtr(-z0)) if math.floor(thr) + 1 <= model.saturation_dn else 0.0  # a clipped pixel cannot cross
+        tot = int(rng.poisson(p * n_cols * n_rows))
+        if tot == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        lin = rng.integers(0, n_cols * n_rows, tot)
+        z = np.maximum(-ndtri(np.clip(rng.random(tot) * p, 1e-300, None)), z0)
+        e = np.minimum(mu_e + sd_e * z, model.full_well_e)
+        dn = np.clip(np.rint(e / model.gain_e_per_dn + model.bias_dn), math.floor(thr) + 1, model.adc_max_dn)
+        return lin, dn
+    # cells fine enough that the background changes by < 0.25 DN across one (the crossing probability of
+    # quantised pixels depends on where the threshold falls between two DN levels)
+    dn_per_pe = bg.gain / model.gain_e_per_dn
+    gx = int(min(_FALSE_GRID, n_cols, max(1, math.ceil(4 * abs(bg.opt_dx) * n_cols * dn_per_pe))))
+    gy = int(min(_FALSE_GRID, n_rows, max(1, math.ceil(4 * abs(bg.opt_dy) * n_rows * dn_per_pe))))
     ce = np.linspace(-0.5, n_cols - 0.5, gx + 1)
     re = np.linspace(-0.5, n_rows - 0.5, gy + 1)
     xc = 0.5 * (ce[:-1] + ce[1:])[None, :]
     yc = 0.5 * (re[:-1] + re[1:])[:, None]
     mu_e = bg.mean_e(xc, yc)
-    sd_e = np.sqrt(bg.var_e(xc, yc))
-    thr = bg.threshold_dn(xc, yc, k_sigma)
+    var_e = bg.var_e(xc, yc)
+    sd_e = np.sqrt(var_e)
+    thr = mu_e / model.gain_e_per_dn + model.bias_dn + k_sigma * np.sqrt(var_e / model.gain_e_per_dn**2 + 1.0 / 12.0)
     cut_e = (np.floor(thr) + 0.5 - model.bias_dn) * model.gain_e_per_dn  # DN > thr  <=>  e >= cut_e
     z0 = (cut_e - mu_e) / sd_e
-    p = ndtr(-z0)
+    p = np.where(np.floor(thr) + 1 <= model.saturation_dn, ndtr(-z0), 0.0)  # a clipped pixel cannot cross
     n_in_cell = np.outer(np.diff(np.floor(re + 0.5)), np.diff(np.floor(ce + 0.5)))
-    counts = rng.poisson(p * n_in_cell)
-    tot = int(counts.sum())
+    lam = np.cumsum((p * n_in_cell).ravel())
+    # a Poisson process over the cells: Poisson total, cells in proportion to their expected counts
+    tot = int(rng.poisson(lam[-1])) if lam[-1] > 0 else 0
     if tot == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0)
-    cell = np.repeat(np.arange(counts.size), counts.ravel())
+    cell = np.minimum(np.searchsorted(lam, rng.random(tot) * lam[-1], side="right"), lam.size - 1)
     cy, cx = np.divmod(cell, gx)
     c0 = np.floor(ce[cx] + 0.5).astype(np.int64)
     c1 = np.floor(ce[cx + 1] + 0.5).astype(np.int64)

@@ -136,7 +136,9 @@ class InertialAidedMatcher:
     n_sigma_ins : float
         Error radius in units of the INS cross-LoS 1σ (eq. 13).
     max_error_radius_deg : float
-        Beyond this INS error radius the all-sky catalog is used instead of a part catalog.
+        Beyond this INS error radius the all-sky catalog is used instead of a part catalog. The part catalog's
+        build grows with the square of its star count: past ~20° it costs more than matching on the prebuilt
+        all-sky catalog, for the same success rate (benchmarks/bench_multifov.py).
     max_stars_per_head : int
         Brightest detections per head used to form triangles (all are used in verification).
     max_triangles : int
@@ -168,7 +170,7 @@ class InertialAidedMatcher:
         sigma_px: float = 0.2,
         n_sigma_match: float = 5.0,
         n_sigma_ins: float = 5.0,
-        max_error_radius_deg: float = 45.0,
+        max_error_radius_deg: float = 20.0,
         max_stars_per_head: int = 8,
         max_triangles: int = 120,
         min_matched: int = 3,

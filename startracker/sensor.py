@@ -29,7 +29,10 @@ lock instead of producing a confident wrong attitude.
 
 Exposure plan: while lost or acquiring a single exposure is requested (lost-in-space needs one spot per
 star); while tracking ``N = clip(1 + round(|ω| / rate_per_exposure_deg_s), 1, max_exposures)``, paper 000
-§5's plan (N from 1 to 21 as the rate goes from 0 to 20 °/s, spots of one star ~10 px apart).
+§5's plan (N from 1 to 21 as the rate goes from 0 to 20 °/s, spots of one star ~10 px apart), further
+capped so that consecutive spots of a star stay ``2 shift_k_sigma`` prediction σ apart, and 1 until the
+acceleration has been estimated. A frame with more exposures than the prediction can separate is refused
+(the tracker does not guess which exposure a spot belongs to).
 
 Motion state after a tracked frame: the last solved instant's attitude and covariance; the body rate
 from a least-squares line through the instants' rotation vectors (or the gyro, or the rotation between

@@ -69,9 +69,7 @@ __all__ = [
 ]
 
 MATCH_METHODS = ("dkvlut", "brute", "kdtree")
-RADIUS_K_SIGMA = 6.0
-_ROW_OFFSETS = np.array([[0], [1], [2], [3]], dtype=np.int64)
-_SIGNS = np.array([[-1.0], [1.0], [-1.0], [1.0]])  # P(true spot outside r) = exp(-k²/2) = 1.5e-8
+RADIUS_K_SIGMA = 6.0  # P(true spot outside r) = exp(-k²/2) = 1.5e-8
 _BRUTE_BLOCK = 2_000_000  # max elements of one distance block (16 MB)
 
 
@@ -142,10 +140,7 @@ class DKVLUT:
     permutation of R) lies inside that axis' range ``[u_a, u_b]``, an O(1) test.
     """
 
-    __slots__ = (
-        "xy", "kx", "ky", "n", "_xy_t", "_k_table", "_row_offset", "_inv_a", "_sign_inv_a", "_c", "_rank",
-        "_degenerate", "_any_degenerate",
-    )
+    __slots__ = ("xy", "kx", "ky", "n", "_xy_t", "_k_table", "_row_offset", "_line", "_degenerate", "_cross")
 
     def __init__(self, predicted_xy, _checked: bool = False):
         xy = predicted_xy if _checked else _check_points(predicted_xy, "predicted_xy")
@@ -159,41 +154,34 @@ class DKVLUT:
         # Eq. 5 in one gather for both axes: rows u_a = K(i_a) (1-based) -> 0-based start K(i_a) - 1,
         # u_b = K(i_b) -> 0-based exclusive stop K(i_b); x then y.
         kx, ky = self.kx.k, self.ky.k
-        self._k_table = np.concatenate([kx - 1, kx, ky - 1, ky])
-        self._k_table[0] = 0  # K(1) - 1 = -1 -> row 0
-        self._k_table[2 * n] = 0
-        self._row_offset = _ROW_OFFSETS * n - 1
-        # Eq. 4 as h = (x ∓ r) / a1 + c with c = (∓tol - b1) / a1. The tolerance (1e-9 of the coordinate
+        table = np.concatenate((kx, kx, ky, ky))
+        table[:n] -= 1
+        table[2 * n : 3 * n] -= 1
+        table[0] = table[2 * n] = 0  # K(1) - 1 = -1 -> row 0 (K(i) >= 1 for i >= 2)
+        self._k_table = table
+        self._row_offset = np.array([[-1], [n - 1], [2 * n - 1], [3 * n - 1]], dtype=np.int64)
+        # Eq. 4 as h = x / a1 + (∓r ∓ tol - b1) / a1 with Python floats; the tolerance (1e-9 of the coordinate
         # scale) widens every range so floor/ceil rounding can never drop a point.
-        inv_a, c, deg = [], [], []
+        line, deg = [], []
         for kv in (self.kx, self.ky):
             s0, s1, a1, b1 = float(kv.sorted_values[0]), float(kv.sorted_values[-1]), float(kv.a1), float(kv.b1)
-            tol = 1e-9 * (abs(s0) + abs(s1) + a1)
             # Coordinates (nearly) all equal: the line is meaningless in floating point; every query
             # touching [S(1), S(l_s)] gets the whole table, still a superset of the answer.
             degenerate = not (a1 > 1e-9 * max(1.0, abs(s0), abs(s1)))
             deg.append(degenerate)
-            inv = 0.0 if degenerate else 1.0 / a1
-            inv_a += [inv, inv]
-            c += [0.0, 0.0] if degenerate else [(-tol - b1) * inv, (tol - b1) * inv]
-        self._inv_a = np.array(inv_a)[:, None]
-        self._sign_inv_a = self._inv_a * _SIGNS
-        self._c = np.array(c)[:, None]
+            line.append((0.0 if degenerate else 1.0 / a1, b1, 1e-9 * (abs(s0) + abs(s1) + a1), s0, s1))
+        self._line = line
         self._degenerate = deg
-        self._any_degenerate = deg[0] or deg[1]
-        self._rank = [None, None]
-
-    @staticmethod
-    def _scale(kv: KVector) -> float:
-        return 1e-9 * (abs(kv.sorted_values[0]) + abs(kv.sorted_values[-1]) + kv.a1)
+        self._cross = [None, None]
 
     def _ranges(self, obs_t: np.ndarray, r: float) -> np.ndarray:
         """Eqs. 4-5 for both axes: rows (start_x, stop_x, start_y, stop_y) of 0-based half-open slices
         ``[K(i_a) - 1, K(i_b))`` of the sorted tables (the paper's 1-based ``u ∈ [K(i_a), K(i_b)]``)."""
-        h = obs_t[[0, 0, 1, 1]]  # x_p, x_p, y_p, y_p
-        h *= self._inv_a
-        h += self._c + r * self._sign_inv_a  # (x_p ∓ r ∓ tol - b1) / a1
-        if not np.isfinite(h).all():  # only for coordinates near the float range limits
+        (ix, bx, tx, _, _), (iy, by, ty, _, _) = self._line
+        h = np.repeat(obs_t, 2, axis=0)  # x_p, x_p, y_p, y_p
+        h *= np.array([[ix], [ix], [iy], [iy]])
+        h += np.array([[(-r - tx - bx) * ix], [(r + tx - bx) * ix], [(-r - ty - by) * iy], [(r + ty - by) * iy]])
+        if not np.isfinite(h.sum()):  # only for coordinates near the float range limits
             h[0::2] = np.nan_to_num(h[0::2], nan=1.0)
             h[1::2] = np.nan_to_num(h[1::2], nan=float(self.n))
         np.clip(h, 1, self.n, out=h)  # i in [1, l_s]; for the i_a rows truncation below is the floor
@@ -201,13 +189,12 @@ class DKVLUT:
         i = h.astype(np.int64)
         i += self._row_offset
         u = self._k_table.take(i)
-        if self._any_degenerate:
-            for row, (kv, deg) in enumerate(zip((self.kx, self.ky), self._degenerate)):
-                if deg:
-                    o = obs_t[row]
-                    touch = (o + r >= kv.sorted_values[0]) & (o - r <= kv.sorted_values[-1])
-                    u[2 * row] = 0
-                    u[2 * row + 1] = np.where(touch, self.n, 0)
+        for axis, deg in enumerate(self._degenerate):
+            if deg:
+                s0, s1 = self._line[axis][3:]
+                o = obs_t[axis]
+                u[2 * axis] = 0
+                u[2 * axis + 1] = np.where((o + r >= s0) & (o - r <= s1), self.n, 0)
         return u
 
     def candidate_ranges(self, observed_xy, radius_px):
@@ -220,7 +207,7 @@ class DKVLUT:
             i.e. the paper's 1-based rows ``u_x = K_x(i_a) .. K_x(i_b)``.
         """
         obs = _check_points(observed_xy, "observed_xy")
-        u = self._ranges(obs.T, _check_radius(radius_px))
+        u = self._ranges(np.ascontiguousarray(obs.T), _check_radius(radius_px))
         return (u[0], u[1]), (u[2], u[3])
 
     def candidates(self, observed_xy, radius_px) -> tuple[np.ndarray, np.ndarray]:
@@ -232,7 +219,16 @@ class DKVLUT:
             Pairs with the predicted point in both the x and the y candidate set, grouped by query.
         """
         obs = _check_points(observed_xy, "observed_xy")
-        return self._intersection(obs.T, _check_radius(radius_px))
+        return self._intersection(np.ascontiguousarray(obs.T), _check_radius(radius_px))
+
+    def _cross_rows(self, axis: int) -> np.ndarray:
+        """Row in the other axis' table of each row of ``axis``'s table: ``rank_other[R_axis]``."""
+        if self._cross[axis] is None:
+            tables = (self.kx, self.ky)
+            rank = np.empty(self.n, dtype=np.int64)
+            rank[tables[1 - axis].order] = np.arange(self.n)
+            self._cross[axis] = rank.take(tables[axis].order)
+        return self._cross[axis]
 
     def _intersection(self, obs_t: np.ndarray, r: float):
         u = self._ranges(obs_t, r)
@@ -250,18 +246,9 @@ class DKVLUT:
         rows[2:] = u[2 - 2 * a : 4 - 2 * a]
         rep = np.repeat(rows, cnt, axis=1)
         pos = np.arange(int(tot[a])) - rep[1]  # walked table rows u in [u_a, u_b]
-        ro = self._cross(a).take(pos)  # the same stars' rows in the other axis' table
+        ro = self._cross_rows(a).take(pos)  # the same stars' rows in the other axis' table
         keep = np.flatnonzero((ro >= rep[2]) & (ro < rep[3]))  # R_x(u_x) ∩ R_y(u_y), eq. 6
         return rep[0].take(keep), (self.kx, self.ky)[a].order.take(pos.take(keep))
-
-    def _cross(self, axis: int) -> np.ndarray:
-        """Row in the other axis' table of each row of ``axis``'s table: ``rank_other[R_axis]``."""
-        if self._rank[axis] is None:
-            tables = (self.kx, self.ky)
-            rank = np.empty(self.n, dtype=np.int64)
-            rank[tables[1 - axis].order] = np.arange(self.n)
-            self._rank[axis] = rank[tables[axis].order]
-        return self._rank[axis]
 
     def match(self, observed_xy, radius_px) -> np.ndarray:
         """Nearest predicted point within ``radius_px`` of every observed point (see :func:`match_stars`)."""
@@ -274,11 +261,10 @@ class DKVLUT:
     def _match(self, obs: np.ndarray, r: float) -> np.ndarray:
         obs_t = np.ascontiguousarray(obs.T)
         qi, e = self._intersection(obs_t, r)
-        dx = obs_t[0].take(qi)
-        dx -= self._xy_t[0].take(e)
-        dy = obs_t[1].take(qi)
-        dy -= self._xy_t[1].take(e)
-        d2 = dx**2 + dy**2  # the shared expression (x_q - x_p)² + (y_q - y_p)²
+        d = obs_t.take(qi, axis=1)
+        d -= self._xy_t.take(e, axis=1)
+        d *= d
+        d2 = d[0] + d[1]  # the shared expression (x_q - x_p)² + (y_q - y_p)²
         ok = np.flatnonzero(d2 <= r * r)
         return _nearest_per_query(qi.take(ok), e.take(ok), d2.take(ok), len(obs))
 
@@ -290,10 +276,8 @@ def _match_brute(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
     for s in range(0, len(obs), block):  # blocks only bound memory; each block is all-pairs vectorised
         o = obs[s : s + block]
         d2 = (o[:, 0, None] - pred[None, :, 0]) ** 2 + (o[:, 1, None] - pred[None, :, 1]) ** 2
-        d2[d2 > r2] = np.inf
         j = np.argmin(d2, axis=1)  # first minimum: ties to the lowest index
-        hit = np.isfinite(d2[np.arange(len(o)), j])
-        out[s : s + block] = np.where(hit, j, -1)
+        out[s : s + block] = np.where(d2[np.arange(len(o)), j] <= r2, j, -1)
     return out
 
 

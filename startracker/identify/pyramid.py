@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from startracker.identify.frame import Frame, IdentifyOptions
-from startracker.identify.verification import Match, best_of, fast_rotation, triangle_false_rate, verify
+from startracker.identify.verification import Match, best_of, fast_rotation, select_matches, triangle_false_rate, verify
 
 __all__ = ["smart_triads", "identify_pyramid", "PairCandidates", "triangles", "confirm_fourth"]
 
@@ -144,37 +144,48 @@ def triangles(db, frame: Frame, cands, i: int, j: int, k: int) -> np.ndarray:
     return np.column_stack([a[same], b[same], c[same]])
 
 
-def confirm_fourth(db, frame: Frame, det3, hyp: np.ndarray, rest: np.ndarray):
-    """The pyramid step: which hypotheses have a fourth detection that fits all three catalog angles.
+def confirm_fourth(db, frame: Frame, det3, hyp: np.ndarray, pool: int):
+    """The pyramid step, batched: which hypotheses have a fourth detection that fits all three stars.
 
     Under a hypothesis' attitude a fourth detection ``r`` must point at a catalog star ``d``; its three
-    angles to ``a, b, c`` then agree with the measured ones within the pair tolerance exactly when ``d``
-    lies within about that tolerance of the predicted direction, which is what is tested (one k-d tree
-    query for all hypotheses and all remaining stars).
+    angles to ``a, b, c`` then agree with the measured ones within the tolerance exactly when ``d`` lies
+    within about that tolerance of the predicted direction. One k-d tree query for all hypotheses and
+    all detections gives both this test (on the other stars of the pool) and the first round of the
+    verification's matching (on every detection).
 
     Parameters
     ----------
     det3 : sequence of 3 int
         The detections of the triad.
     hyp : ndarray, shape (H, 3)
-    rest : ndarray of int, shape (R,)
-        Candidate fourth detections.
+    pool : int
+        Fourth stars are looked for among detections ``0 .. pool-1``.
 
     Returns
     -------
     ok : ndarray of bool, shape (H,)
     rot : ndarray, shape (H, 3, 3)
         Triad attitudes.
+    first : list of (det, nav, dist)
+        The unambiguous matches of every detection under each hypothesis.
     """
     v = frame.v
     nav = db.nav.vectors
+    n = frame.n
     rot = fast_rotation(v[list(det3)][None], nav[hyp])
-    if len(rest) == 0:
-        return np.zeros(len(hyp), dtype=bool), rot
-    w = (rot @ v[rest].T).transpose(0, 2, 1).reshape(-1, 3)  # (H*R, 3) predicted ICRS directions
-    reach = 2.0 * float(frame.pair_tol_rad[det3[0], rest].max())
-    dist, _ = db.tree.query(w, k=1, distance_upper_bound=2 * np.sin(reach / 2))
-    return np.isfinite(dist).reshape(len(hyp), len(rest)).any(axis=1), rot
+    w = (rot @ v.T).transpose(0, 2, 1).reshape(-1, 3)  # (H*n, 3) predicted ICRS directions
+    chord = 2.0 * math.sin(frame.match_tol_rad / 2.0)
+    dist, idx = db.tree.query(w, k=2, distance_upper_bound=3.0 * chord)
+    dist = dist.reshape(len(hyp), n, 2)
+    idx = idx.reshape(len(hyp), n, 2)
+    ok = np.zeros(len(hyp), dtype=bool)
+    first = []
+    for h in range(len(hyp)):  # a handful of hypotheses
+        m = select_matches(dist[h], idx[h], chord)
+        first.append(m)
+        fourth = (m[0] < pool) & (m[0] != det3[0]) & (m[0] != det3[1]) & (m[0] != det3[2])
+        ok[h] = bool(fourth.any())
+    return ok, rot, first
 
 
 def identify_pyramid(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | None, str, int]:
@@ -183,7 +194,6 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | N
     if n < 3:
         return None, "fewer than 3 usable detections", 0
     pool = min(n, opts.max_stars or 12)
-    order = np.arange(min(n, max(pool, 4)))  # fourth stars come from the pool (at least 4 stars)
     cands = PairCandidates(db.pairs, frame)
     n_stars = float(db.n_stars)
     n_hyp = 0
@@ -201,17 +211,14 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | N
         hyp = triangles(db, frame, cands, i, j, k)
         if len(hyp) == 0:
             continue
-        rest = np.delete(order, (i, j, k))
-        ok, rot = confirm_fourth(db, frame, (i, j, k), hyp, rest)
-        if n > 3:
-            hyp, rot = hyp[ok], rot[ok]
-        if len(hyp) == 0:
-            continue
+        ok, rot, first = confirm_fourth(db, frame, (i, j, k), hyp, max(pool, 4))
+        if n == 3:
+            ok[:] = True  # no fourth star exists: the false-alarm rule alone decides
         lam = triangle_false_rate(frame, i, j, k, n_stars, db.clumping3)
         matches = []
-        for h in range(len(hyp)):  # hypotheses that survived the pyramid: a handful
+        for h in np.flatnonzero(ok):  # hypotheses that survived the pyramid: a handful
             n_hyp += 1
-            m = verify(db, frame, np.array([i, j, k]), hyp[h], lam, opts.false_alarm, rot=rot[h])
+            m = verify(db, frame, np.array([i, j, k]), hyp[h], lam, opts.false_alarm, rot=rot[h], first=first[h])
             if m is not None:
                 matches.append(m)
         best, status = best_of(matches, frame.match_tol_rad)

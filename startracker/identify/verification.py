@@ -32,7 +32,7 @@ import numpy as np
 
 from startracker.identify.frame import Frame
 
-__all__ = ["Match", "fast_rotation", "triangle_false_rate", "required_matches", "verify", "match_detections"]
+__all__ = ["Match", "fast_rotation", "triangle_false_rate", "required_matches", "verify", "match_detections", "select_matches", "best_of"]
 
 
 @dataclass
@@ -157,6 +157,28 @@ def required_matches(lam: float, n_det: int, p: float, false_alarm: float) -> in
     return n_det + 1
 
 
+def select_matches(dist: np.ndarray, idx: np.ndarray, chord: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unambiguous, one-to-one matches from a two-nearest-neighbour query (see :func:`match_detections`).
+
+    Parameters
+    ----------
+    dist, idx : ndarray, shape (n, 2)
+        Chord distances and navigation indices of the two nearest stars of each detection.
+    chord : float
+        Verification radius as a chord.
+    """
+    det = np.flatnonzero((dist[:, 0] <= chord) & (dist[:, 1] > dist[:, 0] + chord))
+    nav = idx[det, 0]
+    d = dist[det, 0]
+    if len(nav) > 1 and len(set(nav.tolist())) < len(nav):
+        o = np.lexsort((d, nav))
+        first = np.ones(len(o), dtype=bool)
+        first[1:] = nav[o][1:] != nav[o][:-1]
+        keep = np.sort(o[first])
+        det, nav, d = det[keep], nav[keep], d[keep]
+    return det, nav, d
+
+
 def match_detections(db, v_icrs: np.ndarray, tol_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nearest navigation star of each direction within ``tol_rad``, unambiguous and one star per detection.
 
@@ -180,19 +202,10 @@ def match_detections(db, v_icrs: np.ndarray, tol_rad: float) -> tuple[np.ndarray
     """
     chord = 2.0 * math.sin(tol_rad / 2.0)
     dist, idx = db.tree.query(v_icrs, k=2, distance_upper_bound=3.0 * chord)
-    det = np.flatnonzero((dist[:, 0] <= chord) & (dist[:, 1] > dist[:, 0] + chord))
-    nav = idx[det, 0]
-    d = dist[det, 0]
-    if len(nav) > 1 and len(set(nav.tolist())) < len(nav):
-        o = np.lexsort((d, nav))
-        first = np.ones(len(o), dtype=bool)
-        first[1:] = nav[o][1:] != nav[o][:-1]
-        keep = np.sort(o[first])
-        det, nav, d = det[keep], nav[keep], d[keep]
-    return det, nav, d
+    return select_matches(dist, idx, chord)
 
 
-def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, rot=None) -> Match | None:
+def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, rot=None, first=None) -> Match | None:
     """Check one hypothesis against all detections; a :class:`Match` when it passes, else None.
 
     Parameters
@@ -206,6 +219,8 @@ def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, r
     false_alarm : float
     rot : ndarray, shape (3, 3), optional
         The hypothesis attitude if already computed.
+    first : (det, nav), optional
+        The matches under ``rot`` if already computed (:func:`select_matches`).
     """
     nav_vec = db.nav.vectors
     if rot is None:
@@ -214,7 +229,7 @@ def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, r
     n_req = required_matches(lam, frame.n, db.p_random(tol), false_alarm)
     if n_req > frame.n:
         return None
-    det, nav, _ = match_detections(db, frame.v @ rot.T, tol)
+    det, nav = first[:2] if first is not None else match_detections(db, frame.v @ rot.T, tol)[:2]
     if len(det) < n_req:
         return None
     # Refit on every match (the triad attitude is poor far from the triad) and match again.

@@ -1,0 +1,135 @@
+"""Camera heads as the env sees them: truth in, detections out, and a picture when someone looks.
+
+``MonoHead``: one detector (paper 000's intensified camera, ZY-3, ...). ``ColorHead``: paper 004's 3CMOS prism
+camera: three channel scenes, per-channel detections, registered onto green with the calibration of paper 004 §3
+(done once, on the ground: a simulated rotary table with a fixed seed) and fused at centroid level.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from startracker.centroid import Centroids, simulate_detections
+from startracker.imaging import SensorModel, render_frame
+from startracker.optics import camera_preset
+from startracker.scene import compute_scene
+
+__all__ = ["MonoHead", "ColorHead", "make_head", "HEAD_CAMERAS"]
+
+HEAD_CAMERAS = ("paper000", "zy3", "paper003", "paper004", "paper004_3cmos")
+CALIBRATION_SEED = 2024  # the ground calibration of the 3CMOS head (a property of the unit, not of an episode)
+
+
+def _to_rgb(planes) -> np.ndarray:
+    """(3, rows, cols) DN -> (rows, cols, 3) uint8: black at background + 2σ (robust), asinh stretch, so noise
+    stays dark and faint stars remain visible next to bright ones."""
+    planes = np.asarray(planes, dtype=np.float64)
+    sub = planes[:, ::4, ::4]
+    med = np.median(sub, axis=(1, 2), keepdims=True)
+    sigma = 1.4826 * np.median(np.abs(sub - med), axis=(1, 2), keepdims=True)
+    x = np.clip(planes - med - 2.0 * sigma, 0, None) / np.maximum(sigma, 1e-9)
+    top = max(float(np.percentile(x[:, ::2, ::2], 99.99)), 1.0)  # not the max: one cosmic ray would dim everything
+    out = np.clip(np.arcsinh(x / 3.0) / np.arcsinh(top / 3.0), 0, 1)
+    return (np.moveaxis(out, 0, -1) * 255).astype(np.uint8)
+
+
+def _mark(rgb: np.ndarray, xy, color=(0, 255, 0), half: int = 6) -> np.ndarray:
+    """Square boxes around detections (vectorised over the detections)."""
+    h, w = rgb.shape[:2]
+    if len(xy) == 0:
+        return rgb
+    c = np.round(np.asarray(xy)).astype(int)
+    d = np.arange(-half, half + 1)
+    for side in (-half, half):  # four edges, all detections at once
+        for cols, rows in ((c[:, :1] + d, c[:, 1:2] + side + 0 * d), (c[:, :1] + side + 0 * d, c[:, 1:2] + d)):
+            ok = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h)
+            rgb[rows[ok], cols[ok]] = color
+    return rgb
+
+
+class MonoHead:
+    """One monochrome detector.
+
+    Parameters
+    ----------
+    camera_name : str
+        A preset of :func:`startracker.optics.camera_preset`.
+    """
+
+    is_color = False
+
+    def __init__(self, camera_name: str):
+        self.camera_name = camera_name
+        self.camera = camera_preset(camera_name)
+        self.sensor_model = SensorModel.preset("paper000")
+        self.exposure_s = 1.0e-3  # intensified: millisecond exposures see V = 6
+
+    def detections(self, catalog, truth, plan, t_frame, rng, fidelity, bright_bodies=()):
+        scene = compute_scene(self.camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies)
+        det = simulate_detections(scene, self.sensor_model, rng, fidelity=fidelity)
+        return det, det.intensity, scene
+
+    def render(self, scene, det) -> np.ndarray:
+        image = render_frame(scene, self.sensor_model, np.random.default_rng(0))
+        rgb = _to_rgb(np.stack([image] * 3))
+        return _mark(rgb, det.xy)
+
+    def __getstate__(self):
+        # SensorModel holds a read-only mapping proxy (not picklable): rebuild the preset on load
+        return {"camera_name": self.camera_name}
+
+    def __setstate__(self, d):
+        self.__init__(d["camera_name"])
+
+
+class ColorHead:
+    """Paper 004's 3CMOS head: red, green, blue detectors registered onto green."""
+
+    is_color = True
+
+    def __init__(self, camera_name: str = "paper004_3cmos"):
+        from startracker.color import ColorCamera, paper004_sensor_model
+        from startracker.registration import ColorRegistration, generate_rotary_table_data
+
+        self.camera_name = camera_name
+        self.color_camera = ColorCamera.paper004(translation="table2")
+        self.camera = self.color_camera.channel_camera("green")
+        self.sensor_model = paper004_sensor_model()
+        self.exposure_s = 10.0e-3  # plain CMOS: longer exposures than the intensified head
+        rng = np.random.default_rng(CALIBRATION_SEED)
+        self.registration = ColorRegistration.calibrate(generate_rotary_table_data(self.color_camera, rng), rng=rng)
+
+    def detections(self, catalog, truth, plan, t_frame, rng, fidelity, bright_bodies=()):
+        from startracker.color import channel_scenes, fuse_channel_centroids
+
+        scenes = channel_scenes(self.color_camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies)
+        per_channel = [simulate_detections(sc, self.sensor_model, rng, fidelity=fidelity) for sc in scenes]
+        fused = fuse_channel_centroids(per_channel, self.registration, gain_e_per_dn=self.sensor_model.gain_e_per_dn)
+        n = len(fused)
+        total = fused.total_intensity
+        det = Centroids(fused.xy, total, np.full(n, 1, dtype=np.int64), np.zeros(n, dtype=bool), total, total)
+        return det, total, scenes
+
+    def render(self, scenes, det) -> np.ndarray:
+        """The three channels, each registered onto green, as one colour picture (red, green, blue)."""
+        from startracker.color import fuse_channel_images, render_color_frame
+
+        images = render_color_frame(scenes, self.sensor_model, np.random.default_rng(0))
+        zero = np.zeros_like(images[0])
+        red = fuse_channel_images(np.stack([images[0], zero, zero]), self.registration)
+        blue = fuse_channel_images(np.stack([zero, zero, images[2]]), self.registration)
+        rgb = _to_rgb(np.stack([red, images[1], blue]))
+        return _mark(rgb, det.xy, color=(255, 255, 0))
+
+    def __getstate__(self):
+        return {"camera_name": self.camera_name}
+
+    def __setstate__(self, d):
+        self.__init__(d["camera_name"])
+
+
+def make_head(camera_name: str):
+    """The head for a camera name of :data:`HEAD_CAMERAS`."""
+    if camera_name not in HEAD_CAMERAS:
+        raise ValueError(f"camera must be one of {HEAD_CAMERAS}, got {camera_name!r}")
+    return ColorHead(camera_name) if camera_name == "paper004_3cmos" else MonoHead(camera_name)

@@ -18,8 +18,8 @@ Experiments (each prints a table with the paper's numbers beside ours):
 
 Camera (Table 1 was lost): 5°×5° heads, 1024² px of 5.5 µm, f = 64.5 mm (startracker.multifov.paper001_head);
 the 5° FoV reproduces the paper's 3.0 mean stars per FoV and its 50 % / 90 % single / fused rates. Catalog:
-Hipparcos V <= 6.0, close pairs (< 60") merged away as the paper disposes of double stars. Centroid noise
-0.2 px (1σ per axis). A success is a verified identification whose star ids are all correct; a wrong
+Hipparcos V <= 6.0, the fainter star of every close pair (< 60") dropped, as the paper disposes of double
+stars. Centroid noise 0.2 px (1σ per axis). A success is a verified identification whose star ids are all correct; a wrong
 success is counted separately (it must stay 0).
 
 Usage: python benchmarks/bench_multifov.py [--quick] [--seeds N]

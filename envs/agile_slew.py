@@ -98,6 +98,8 @@ class AgileSlewEnv(gym.Env):
     | ``fidelity`` | ``"centroid"`` | ``"centroid"`` (fast) or ``"pixel"`` (rendered windows, centroiding) |
     | ``gyro_grade`` | ``"tactical"`` | ``ideal``, ``navigation``, ``tactical``, ``industrial`` |
     | ``mag_limit`` | 6.0 | catalog limit, V |
+    | ``n_heads`` | 1 | optical heads: 2 mounts two copies of ``camera`` symmetric about body +z (paper 001); each runs its own state machine, the EKF fuses both, a lost head is re-acquired with the EKF attitude as an inertial prior |
+    | ``head_separation_deg`` | 45 | angle between the two boresights, ° |
     | ``inertia_kg_m2`` | (5, 6, 4) | spacecraft inertia, diagonal or 3×3, kg m² |
     | ``n_wheels`` | 4 | 3 (orthogonal) or 4 (pyramid) |
     | ``wheel_max_torque_Nm`` | 0.5 | wheel torque limit, N m |
@@ -135,6 +137,8 @@ class AgileSlewEnv(gym.Env):
         fidelity: str = "centroid",
         gyro_grade: str = "tactical",
         mag_limit: float = 6.0,
+        n_heads: int = 1,
+        head_separation_deg: float = 45.0,
         inertia_kg_m2=(5.0, 6.0, 4.0),
         n_wheels: int = 4,
         wheel_max_torque_Nm: float = 0.5,
@@ -214,6 +218,8 @@ class AgileSlewEnv(gym.Env):
                 fidelity=fidelity,
                 gyro_grade=gyro_grade,
                 mag_limit=mag_limit,
+                n_heads=n_heads,
+                head_separation_deg=head_separation_deg,
                 keep_images=render_mode == "rgb_array",
             )
         )

@@ -36,6 +36,8 @@ from startracker.rotations import (
 )
 from startracker.scene import BrightBody, ExposurePlan
 
+from startracker.multifov import MultiFovSensor
+
 from envs.camera_head import HEAD_CAMERAS, make_head
 from envs.faults import FaultSchedule
 from startracker.sensor import StarTracker
@@ -65,11 +67,20 @@ class AvionicsConfig:
     gyro_grade: str = "tactical"
     gyro_rate_hz: float = 100.0
     mag_limit: float = 6.0
+    n_heads: int = 1
+    head_separation_deg: float = 45.0
     keep_images: bool = False
 
     def __post_init__(self):
         if self.camera not in HEAD_CAMERAS:
             raise ValueError(f"camera must be one of {HEAD_CAMERAS}, got {self.camera!r}")
+        if self.n_heads not in (1, 2) or isinstance(self.n_heads, bool):
+            raise ValueError(f"n_heads must be 1 or 2, got {self.n_heads!r}")
+        if self.n_heads == 2 and self.camera == "paper004_3cmos":
+            raise ValueError("n_heads=2 is available for the monochrome cameras only, not camera='paper004_3cmos'")
+        if not (np.isfinite(self.head_separation_deg) and 10.0 <= self.head_separation_deg <= 170.0):
+            raise ValueError(f"head_separation_deg must be in [10, 170] (heads must not overlap or point the same way), "
+                             f"got {self.head_separation_deg!r}")
         if self.exposure_mode not in ("single", "multi"):
             raise ValueError(f"exposure_mode must be 'single' or 'multi', got {self.exposure_mode!r}")
         n = self.n_exposures
@@ -117,17 +128,24 @@ class Avionics:
         if not isinstance(config, AvionicsConfig):
             raise TypeError("config must be an AvionicsConfig")
         self.config = config
-        self.head = make_head(config.camera)
+        if config.n_heads == 1:
+            self.heads = [make_head(config.camera)]
+        else:
+            # paper 001's layout: two heads symmetric about body +z, boresights head_separation_deg apart
+            base = make_head(config.camera)
+            mounted = MultiFovSensor.two_heads(base.camera, config.head_separation_deg).heads
+            self.heads = [make_head(config.camera, q_cam_to_body=c.q_cam_to_body) for c in mounted]
+        self.head = self.heads[0]
         self.camera = self.head.camera
         self.exposure_s = config.exposure_s if config.exposure_s is not None else self.head.exposure_s
         self.catalog = load_catalog(mag_limit=config.mag_limit)
         self.gyro_spec = gyro_preset(config.gyro_grade, rate_hz=config.gyro_rate_hz)
-        self.tracker = StarTracker(
-            self.camera,
-            self.catalog,
-            identify_method=config.identify_method,
-            matcher=config.matcher,
-        )
+        self.trackers = [
+            StarTracker(h.camera, self.catalog, identify_method=config.identify_method, matcher=config.matcher)
+            for h in self.heads
+        ]
+        self.tracker = self.trackers[0]
+        self.head_modes = ["lost"] * len(self.heads)
         self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
         self._gyro_dt = 1.0 / config.gyro_rate_hz
         self.gyro: Gyro | None = None
@@ -162,7 +180,9 @@ class Avionics:
         self._t_lock_lost = None
         self._reacquisition_s: list[float] = []
         self.gyro = Gyro(self.gyro_spec, rng)
-        self.tracker.reset()
+        for tr in self.trackers:
+            tr.reset()
+        self.head_modes = ["lost"] * len(self.heads)
         self.tracker_mode = "lost"
         self.ekf = None
         self._omega_gyro = np.zeros(3)
@@ -309,67 +329,84 @@ class Avionics:
     def reacquisition_times_s(self) -> list[float]:
         return list(self._reacquisition_s)
 
+    def _plan_for(self, tracker, camera, omega_hint) -> ExposurePlan:
+        cfg = self.config
+        if cfg.exposure_mode == "single" or tracker.requested_n_exposures == 1:
+            # lost-in-space needs one sharp spot per star: a single exposure centred in the frame
+            return ExposurePlan(n_exposures=1, exposure_s=cfg.single_exposure_s, frame_period_s=cfg.frame_period_s,
+                                start_offset_s=0.5 * (cfg.frame_period_s - cfg.single_exposure_s))
+        if cfg.n_exposures == "adaptive":
+            rate = np.zeros(3) if omega_hint is None else omega_hint
+            return ExposurePlan.for_rate(rate, camera, frame_period_s=cfg.frame_period_s,
+                                         exposure_s=self.exposure_s, n_max=cfg.max_exposures)
+        return ExposurePlan(n_exposures=int(cfg.n_exposures), exposure_s=self.exposure_s,
+                            frame_period_s=cfg.frame_period_s)
+
+    def _inertial_prior(self, tracker, t_frame: float):
+        """The EKF attitude propagated to the frame, offered to a tracker that is not tracking (inertial aiding),
+        when the filter is confident enough for the tracker's prior check."""
+        if self.ekf is None:
+            return None
+        if float(np.max(self.ekf.attitude_sigma_rad)) > tracker.prior_sigma_rad / 3.0:
+            return None
+        return quat_integrate(self.ekf.q_body_to_world, self.ekf.omega_body, t_frame - self.ekf.t_s)
+
     def _run_frame(self, t_frame: float, truth, rng, omega_hint=None) -> list:
-        """Image, detect and process one frame starting at ``t_frame``; returns the attitude samples."""
+        """Image, detect and process one frame starting at ``t_frame`` on every head; returns the attitude samples."""
         cfg = self.config
         t_mid = t_frame + 0.5 * cfg.frame_period_s
         self._last_time_error_s = 0.0
         if self.faults and self.faults.frame_dropped(t_mid):
             self.last_stats = dict(self._empty_stats(), exposures_per_frame=0)
             return []
-        want_single = cfg.exposure_mode == "single" or self.tracker.requested_n_exposures == 1
-        if want_single:
-            plan = ExposurePlan(n_exposures=1, exposure_s=cfg.single_exposure_s, frame_period_s=cfg.frame_period_s,
-                                start_offset_s=0.5 * (cfg.frame_period_s - cfg.single_exposure_s))
-        elif cfg.n_exposures == "adaptive":
-            rate = np.zeros(3) if omega_hint is None else omega_hint
-            plan = ExposurePlan.for_rate(rate, self.camera, frame_period_s=cfg.frame_period_s,
-                                         exposure_s=self.exposure_s, n_max=cfg.max_exposures)
-        else:
-            n = int(cfg.n_exposures)
-            plan = ExposurePlan(n_exposures=n, exposure_s=self.exposure_s, frame_period_s=cfg.frame_period_s)
-        bodies = ()
+        sun = None
+        blinded = set()
         if self.faults:
             t_s, q_s = truth
             q_mid = quat_interpolate(t_s, q_s, np.clip(t_mid, t_s[0], t_s[-1]))
             bore = quat_rotate(q_mid, self.camera.boresight_body())
             sun = self.faults.sun_direction_world(t_mid, bore, rng)
-            if sun is not None:
-                bodies = (BrightBody("sun", tuple(sun)),)
-        det, _, scene = self.head.detections(self.catalog, truth, plan, t_frame, rng, cfg.fidelity, bodies)
-        t_exp = plan.exposure_mid_times(t_frame)
-        self._last_time_error_s = 0.0
-        if len(det) and np.any(det.intensity <= 0):
-            det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
-        if self.faults:
-            det = self.faults.modify_detections(det, t_mid, rng, self.camera.resolution)
+            blinded = self.faults.blinded_heads(t_mid)
             self._last_time_error_s = self.faults.timestamp_error_s(t_mid, rng)
-            t_exp = t_exp + self._last_time_error_s
         prev_mode = self.tracker_mode
-        res = self.tracker.process_frame(
-            det.xy,
-            det.intensity,
-            t_exp,
-            t_frame,
-            omega_body=omega_hint,
-        )
-        self.tracker_mode = res.mode
-        if prev_mode == "track" and res.mode != "track":
+        samples, n_matched, latency, n_exp, frames = [], 0, 0.0, 0, []
+        for k, (head, tracker) in enumerate(zip(self.heads, self.trackers)):
+            plan = self._plan_for(tracker, head.camera, omega_hint)
+            bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
+            det, _, scene = head.detections(self.catalog, truth, plan, t_frame, rng, cfg.fidelity, bodies)
+            if len(det) and np.any(det.intensity <= 0):
+                det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
+            if self.faults:
+                det = self.faults.modify_detections(det, t_mid, rng, head.camera.resolution)
+            if k in blinded:
+                det = det.subset(np.zeros(0, dtype=np.int64))
+            t_exp = plan.exposure_mid_times(t_frame) + self._last_time_error_s
+            prior = self._inertial_prior(tracker, t_frame) if self.head_modes[k] != "track" else None
+            res = tracker.process_frame(det.xy, det.intensity, t_exp, t_frame, omega_body=omega_hint, q_body_prior=prior)
+            self.head_modes[k] = res.mode
+            samples.extend(res.samples)
+            n_matched += int(res.n_matched)
+            latency += float(res.matching_latency_ms)
+            n_exp = max(n_exp, int(plan.n_exposures))
+            frames.append((scene, det))
+        # the sensor tracks while any head tracks
+        self.tracker_mode = next((m for m in ("track", "acquire") if m in self.head_modes), "lost")
+        if prev_mode == "track" and self.tracker_mode != "track":
             self._lost_events += 1
             self._t_lock_lost = t_frame
-        if res.mode == "track" and prev_mode != "track" and self._t_lock_lost is not None:
+        if self.tracker_mode == "track" and prev_mode != "track" and self._t_lock_lost is not None:
             self._reacquisition_s.append(t_frame + cfg.frame_period_s - self._t_lock_lost)
             self._t_lock_lost = None
         if cfg.keep_images:
-            self._last_frame = (scene, det, plan)
+            self._last_frame = frames[0]
         self.last_stats = dict(
             self._empty_stats(),
-            matching_latency_ms=float(res.matching_latency_ms),
-            n_stars=int(res.n_matched),
-            exposures_per_frame=int(plan.n_exposures),
-            n_attitude_samples=len(res.samples),
+            matching_latency_ms=latency,
+            n_stars=n_matched,
+            exposures_per_frame=n_exp,
+            n_attitude_samples=len(samples),
         )
-        return list(res.samples)
+        return samples
 
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
@@ -383,5 +420,5 @@ class Avionics:
         """RGB uint8 image (rows, cols, 3) of the last frame (full render), detections boxed; None before a frame."""
         if self._last_frame is None:
             return None
-        scene, det, plan = self._last_frame
+        scene, det = self._last_frame
         return self.head.render(scene, det)

@@ -58,9 +58,9 @@ class MonoHead:
 
     is_color = False
 
-    def __init__(self, camera_name: str):
+    def __init__(self, camera_name: str, q_cam_to_body=(1.0, 0.0, 0.0, 0.0)):
         self.camera_name = camera_name
-        self.camera = camera_preset(camera_name)
+        self.camera = camera_preset(camera_name, q_cam_to_body=q_cam_to_body)
         self.sensor_model = SensorModel.preset("paper000")
         self.exposure_s = 1.0e-3  # intensified: millisecond exposures see V = 6
 
@@ -76,10 +76,10 @@ class MonoHead:
 
     def __getstate__(self):
         # SensorModel holds a read-only mapping proxy (not picklable): rebuild the preset on load
-        return {"camera_name": self.camera_name}
+        return {"camera_name": self.camera_name, "q_cam_to_body": self.camera.q_cam_to_body}
 
     def __setstate__(self, d):
-        self.__init__(d["camera_name"])
+        self.__init__(d["camera_name"], d["q_cam_to_body"])
 
 
 class ColorHead:
@@ -128,8 +128,8 @@ class ColorHead:
         self.__init__(d["camera_name"])
 
 
-def make_head(camera_name: str):
-    """The head for a camera name of :data:`HEAD_CAMERAS`."""
+def make_head(camera_name: str, q_cam_to_body=(1.0, 0.0, 0.0, 0.0)):
+    """The head for a camera name of :data:`HEAD_CAMERAS`, mounted with ``q_cam_to_body`` (monochrome heads)."""
     if camera_name not in HEAD_CAMERAS:
         raise ValueError(f"camera must be one of {HEAD_CAMERAS}, got {camera_name!r}")
-    return ColorHead(camera_name) if camera_name == "paper004_3cmos" else MonoHead(camera_name)
+    return ColorHead(camera_name) if camera_name == "paper004_3cmos" else MonoHead(camera_name, q_cam_to_body)

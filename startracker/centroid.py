@@ -724,23 +724,28 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
         se2 = np.where(kind == KIND_COSMIC_RAY, _COSMIC_SIGMA_PX**2, model.sigma_px**2) + 1.0 / 12.0
         r_exp = np.sqrt(2.0 * se2 * np.log(np.maximum(peak_e / (k_sigma * np.sqrt(var_bd)), 1.0)))
         reach = r_exp + 0.5 * length[idx]
-        pairs = cKDTree(truth_xy).query_pairs(2.0 * float(reach.max()) + 1e-9, output_type="ndarray")
+        tree = cKDTree(truth_xy, leafsize=32, balanced_tree=False, compact_nodes=False)
+        pairs = tree.query_pairs(2.0 * float(reach.max()) + 1e-9, output_type="ndarray")
         if len(pairs):
-            gap = np.linalg.norm(truth_xy[pairs[:, 0]] - truth_xy[pairs[:, 1]], axis=1)
-            pairs = pairs[gap < reach[pairs[:, 0]] + reach[pairs[:, 1]]]
+            dxy = truth_xy[pairs[:, 0]] - truth_xy[pairs[:, 1]]
+            pairs = pairs[dxy[:, 0] ** 2 + dxy[:, 1] ** 2 < (reach[pairs[:, 0]] + reach[pairs[:, 1]]) ** 2]
         if len(pairs):
-            n_grp, grp = _pair_groups(len(idx), pairs)
-            w = inten_e
+            inv = np.unique(pairs)  # only the spots that merge are regrouped
+            n_grp, grp = _pair_groups(len(inv), np.searchsorted(inv, pairs))
+            w = inten_e[inv]
             wsum = np.bincount(grp, w, n_grp)
-            out_xy = np.column_stack([np.bincount(grp, w * out_xy[:, 0], n_grp), np.bincount(grp, w * out_xy[:, 1], n_grp)]) / wsum[:, None]
-            lead = np.full(n_grp, -1)
+            mxy = np.column_stack([np.bincount(grp, w * out_xy[inv, 0], n_grp),
+                                   np.bincount(grp, w * out_xy[inv, 1], n_grp)]) / wsum[:, None]
+            lead = np.empty(n_grp, dtype=np.int64)
             order_w = np.argsort(w, kind="stable")
-            lead[grp[order_w]] = order_w  # the brightest member labels the merged detection
-            txy = truth_xy[lead]
-            inten_e = wsum
-            det_area = np.bincount(grp, det_area, n_grp)
-            peak_e = np.bincount(grp, peak_e, n_grp)
-            star, expo, kind, var_bd, truth_xy = star[lead], expo[lead], kind[lead], var_bd[lead], txy
+            lead[grp[order_w]] = inv[order_w]  # the brightest member labels the merged detection
+            keep = np.ones(len(idx), dtype=bool)
+            keep[inv] = False
+            out_xy = np.concatenate([out_xy[keep], mxy])
+            inten_e = np.concatenate([inten_e[keep], wsum])
+            det_area = np.concatenate([det_area[keep], np.bincount(grp, det_area[inv], n_grp)])
+            peak_e = np.concatenate([peak_e[keep], np.bincount(grp, peak_e[inv], n_grp)])
+            star, expo, kind, var_bd, truth_xy = (np.concatenate([a[keep], a[lead]]) for a in (star, expo, kind, var_bd, truth_xy))
     bg_e = bg.mean_e(truth_xy[:, 0], truth_xy[:, 1])
     sat = (peak_e + bg_e) / g_dn + model.bias_dn >= model.saturation_dn
     sigma_dn = np.sqrt(var_bd) / g_dn
@@ -752,19 +757,22 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
         kind=[kind], truth_xy=[truth_xy],
     )
     if include_false:
-        # hot pixels
+        # hot pixels: background + their own dark charge, detected when the drawn DN crosses the threshold
         _, hot_idx, hot_rate = fixed_pattern(model, cam.resolution)
         if len(hot_idx):
             hr, hc = np.divmod(hot_idx, n_cols)
-            mu = bg.mean_e(hc, hr) + hot_rate * scene.plan.integration_window_s
-            var = bg.var_e(hc, hr) + hot_rate * scene.plan.integration_window_s
-            thr_dn = bg.threshold_dn(hc, hr, k_sigma)
-            e = mu + np.sqrt(var) * rng.standard_normal(len(hot_idx))
+            q = bg.gain * bg.optical_pe(hc, hr)
+            hot_e = hot_rate * scene.plan.integration_window_s
+            var0 = bg.enf2_c * q + bg.dark_e + bg.read_var_e2
+            mean_dn0 = (q + bg.dark_e) / g_dn + model.bias_dn
+            sd_dn0 = np.sqrt((var0 + (bg.prnu_sigma * q) ** 2) / g_dn**2 + 1.0 / 12.0)
+            e = q + bg.dark_e + hot_e + np.sqrt(var0 + hot_e) * rng.standard_normal(len(hot_idx))
             dn = np.clip(np.rint(np.minimum(e, model.full_well_e) / g_dn + model.bias_dn), 0, model.adc_max_dn)
-            hit = dn > thr_dn
-            hxy = np.stack([hc[hit], hr[hit]], 1).astype(float)
-            sig = dn[hit] - bg.mean_dn(hc[hit], hr[hit])
-            _append_singletons(parts, hxy, sig, dn[hit] >= model.saturation_dn, bg.sigma_dn(hc[hit], hr[hit]), KIND_HOT_PIXEL)
+            hit = np.flatnonzero(dn > mean_dn0 + k_sigma * sd_dn0)
+            if len(hit):
+                hxy = np.column_stack([hc[hit], hr[hit]]).astype(float)
+                _append_singletons(parts, hxy, dn[hit] - mean_dn0[hit] if np.ndim(mean_dn0) else dn[hit] - mean_dn0,
+                                   dn[hit] >= model.saturation_dn, sd_dn0[hit] if np.ndim(sd_dn0) else sd_dn0, KIND_HOT_PIXEL)
         f_lin, f_dn = _false_pixels(bg, k_sigma, n_cols, n_rows, model, rng)
         if len(f_lin):
             fr, fc = np.divmod(f_lin, n_cols)
@@ -804,7 +812,7 @@ def _append_singletons(parts, xy, signal_dn, sat, sigma_dn, kind):
     parts["area"].append(np.ones(k, dtype=np.int64))
     parts["saturated"].append(np.asarray(sat, dtype=bool))
     parts["peak"].append(signal_dn)
-    parts["snr"].append(signal_dn / sigma_dn)
+    parts["snr"].append(signal_dn / np.maximum(sigma_dn, 1e-9))
     parts["star"].append(np.full(k, -1))
     parts["exposure"].append(np.full(k, -1))
     parts["kind"].append(np.full(k, kind))

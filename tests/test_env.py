@@ -170,3 +170,43 @@ def test_render_returns_star_image():
     assert img.shape[:2] == (2048, 2048)
     assert img.max() > img.mean()  # stars stand out of the background
     env.close()
+
+
+def test_3cmos_head_tracks_and_renders_colour():
+    env = gym.make("startracker/AttitudeHold-v0", camera="paper004_3cmos", render_mode="rgb_array")
+    env.reset(seed=2)
+    errs = []
+    for _ in range(15):
+        info = env.step(np.zeros(env.action_space.shape, np.float32))[4]
+        errs.append(info["attitude_error_arcsec"])
+    assert info["tracker_mode"] == "track"
+    assert np.median(errs[-5:]) < 30.0
+    img = env.render()
+    assert img.shape == (1544, 2064, 3)
+    # a colour picture: the red and blue planes are not copies of green
+    assert not np.array_equal(img[..., 0], img[..., 1]) and not np.array_equal(img[..., 2], img[..., 1])
+    env.close()
+
+
+def test_two_heads_beat_one_in_attitude_error():
+    def median_error(n_heads):
+        env = gym.make("startracker/AttitudeHold-v0", n_heads=n_heads)
+        errs = []
+        for seed in (0, 1):
+            env.reset(seed=seed)
+            for k in range(25):
+                info = env.step(np.zeros(env.action_space.shape, np.float32))[4]
+                if k >= 10:
+                    errs.append(info["attitude_error_arcsec"])
+        env.close()
+        return np.median(errs)
+
+    # a second boresight 45 deg away observes the first head's roll axis cross-boresight
+    assert median_error(2) < 0.85 * median_error(1)
+
+
+def test_two_head_kwargs_are_validated():
+    with pytest.raises(ValueError, match="n_heads"):
+        gym.make("startracker/AgileSlew-v0", n_heads=3)
+    with pytest.raises(ValueError, match="head_separation_deg"):
+        gym.make("startracker/AgileSlew-v0", n_heads=2, head_separation_deg=2.0)

@@ -92,3 +92,11 @@ def test_schedule_validation_and_activity_windows():
         Fault.from_dict({"kind": "blank", "when": 3})
     assert set(FAULT_KINDS) >= {"stray_light", "false_objects", "dropout", "saturated", "blank", "dropped_frame",
                                 "time_jitter", "gyro_bias_step", "gyro_saturation", "head_blinded"}
+
+
+def test_blinded_head_of_a_two_head_sensor_keeps_lock_and_recovers():
+    infos = run("head_blinded", 0, n_heads=2)
+    assert all(i["tracker_mode"] == "track" for i in infos[5:])  # the other head carries on
+    assert all("head_blinded" in i["faults_active"] for i in during(infos))
+    assert infos[-1]["n_wrong_samples_total"] == 0
+    assert np.median([i["attitude_error_arcsec"] for i in during(infos)]) < 20.0

@@ -90,3 +90,24 @@ def test_bad_inputs_raise():
         solve_wahba(np.full((3, 3), np.nan), np.eye(3))
     with pytest.raises(ValueError, match="sigma_rad"):
         solve_wahba(np.eye(3), np.eye(3), sigma_rad=-1.0)
+
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(2, 12))
+def test_wahba_is_invariant_to_the_order_of_the_vectors(seed, k):
+    rng = np.random.default_rng(seed)
+    q = quat_random(rng)
+    b = noisy_unit(random_fov_vectors(rng, k), 1e-5, rng)
+    r = random_fov_vectors(rng, k) @ quat_to_matrix(q).T  # any pairs, even inconsistent ones
+    sig = rng.uniform(1e-6, 1e-4, k)
+    perm = rng.permutation(k)
+    s1 = solve_wahba(b, r, sig)
+    s2 = solve_wahba(b[perm], r[perm], sig[perm])
+    assert s1.success == s2.success
+    if s1.success:
+        assert quat_angle_between(s1.q_meas_to_ref, s2.q_meas_to_ref) < 1e-9
+        np.testing.assert_allclose(s1.covariance_rad2, s2.covariance_rad2, rtol=1e-8, atol=1e-20)

@@ -34,7 +34,7 @@ from startracker.rotations import (
     quat_rotate,
     quat_to_rotvec,
 )
-from startracker.scene import BrightBody, ExposurePlan
+from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
 
 from startracker.multifov import MultiFovSensor
 
@@ -243,7 +243,9 @@ class Avionics:
         offsets = []
         for f in range(n_frames):
             tf = t0 + f * self.config.frame_period_s
-            new = self._run_frame(tf, (times, quats), rng, omega_hint=omega_meas.mean(axis=0))
+            # the gyro reading at the frame's start: the tracker propagates its prediction from frame_time
+            k = min(int(round((tf - t0) / self._gyro_dt)), len(omega_meas) - 1)
+            new = self._run_frame(tf, (times, quats), rng, omega_hint=omega_meas[k])
             samples.extend(new)
             offsets.extend([self._last_time_error_s] * len(new))
             lat.append(self.last_stats["matching_latency_ms"])
@@ -336,11 +338,14 @@ class Avionics:
             return ExposurePlan(n_exposures=1, exposure_s=cfg.single_exposure_s, frame_period_s=cfg.frame_period_s,
                                 start_offset_s=0.5 * (cfg.frame_period_s - cfg.single_exposure_s))
         if cfg.n_exposures == "adaptive":
+            # N is what the tracker can separate given its prediction (requested_n_exposures) and what the detector
+            # can separate given the smear (the no-overlap rule of the exposure plan): the smaller of the two
             rate = np.zeros(3) if omega_hint is None else omega_hint
-            return ExposurePlan.for_rate(rate, camera, frame_period_s=cfg.frame_period_s,
-                                         exposure_s=self.exposure_s, n_max=cfg.max_exposures)
-        return ExposurePlan(n_exposures=int(cfg.n_exposures), exposure_s=self.exposure_s,
-                            frame_period_s=cfg.frame_period_s)
+            n_img = choose_n_exposures(rate, camera, cfg.frame_period_s, self.exposure_s, n_max=cfg.max_exposures)
+            n = max(1, min(n_img, tracker.requested_n_exposures))
+        else:
+            n = int(cfg.n_exposures)
+        return ExposurePlan(n_exposures=n, exposure_s=self.exposure_s, frame_period_s=cfg.frame_period_s)
 
     def _inertial_prior(self, tracker, t_frame: float):
         """The EKF attitude propagated to the frame, offered to a tracker that is not tracking (inertial aiding),

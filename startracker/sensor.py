@@ -346,6 +346,7 @@ class StarTracker:
         self._last_frame_time: float | None = None
         self._frame_interval_s = self.frame_period_s
         self._last_gyro: tuple | None = None
+        self._last_exp_centre = 0.0
 
     def _previous_gyro(self, t_frame: float):
         """The previous frame's gyro reading as a rate measurement, if recent (else None)."""
@@ -376,8 +377,10 @@ class StarTracker:
             return 1
         n_rate = 1 + int(np.round(np.degrees(np.linalg.norm(st.omega_body)) / self.rate_per_exposure_deg_s))
         period = self._frame_interval_s
-        lag = 0.0 if self._last_frame_time is None else max(0.0, self._last_frame_time - st.t_s)
-        sigma = prediction_sigma_px(self.camera, st.cov_theta_rad2, period + lag, st.cov_omega, self._cov_alpha_total(st))
+        # The next frame's last exposure: its centre is one interval after the last frame's centre, and its
+        # exposures spread over at most a frame period.
+        horizon = max(period, self._last_exp_centre + 1.5 * period - st.t_s)
+        sigma = prediction_sigma_px(self.camera, st.cov_theta_rad2, horizon, st.cov_omega, self._cov_alpha_total(st))
         w_cam = self.camera.r_cam_to_body.T @ st.omega_body
         travel_px = float(np.hypot(w_cam[0], w_cam[1])) * period * self.camera.focal_length_px
         n_sep = n_rate if self.shift_k_sigma == 0 or sigma == 0 else int(travel_px / (2.0 * self.shift_k_sigma * sigma))
@@ -444,6 +447,7 @@ class StarTracker:
             self._frame_interval_s = dt_frame
         self._last_frame_time = t_frame
         self._last_gyro = None if gyro is None else (t_frame, gyro, self.gyro_sigma_rad_s**2 * np.eye(3))
+        self._last_exp_centre = float(0.5 * (t_exp[0] + t_exp[-1]))
         rate = len(result.samples) / dt_frame
         return replace(result, update_rate_hz=float(rate), mode=self._mode)
 

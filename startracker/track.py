@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from startracker.attitude import RAD_TO_ARCSEC, solve_wahba_batch
+from startracker.attitude import solve_wahba_batch
 from startracker.catalog import StarCatalog
 from startracker.kvector import KVector
 from startracker.optics import Camera

@@ -48,12 +48,13 @@ class Slew:
         return self.w0 + self.alpha * t
 
 
-def frame(cam, nav, slew, k, n, rng, n_false=10, p_detect=0.95, frame_s=FRAME_S):
-    """Frame k (starting at k·T) with n exposures spread over the frame, mid-exposure stamps."""
+def frame(cam, nav, slew, k, n, rng, n_false=10, p_detect=0.95, frame_s=FRAME_S, stamp="end"):
+    """Frame k (from k·T to (k+1)·T) with n exposures spread over it, mid-exposure stamps; the frame time
+    (and gyro reading) at its end or its start."""
     times = k * frame_s + (np.arange(n) + 0.5) * frame_s / n
     fr = synthetic_frame(cam, nav, slew.q0, slew.w0, times, rng, alpha_body=slew.alpha, sigma_px=SIGMA_PX,
                          n_false=n_false, p_detect=p_detect)
-    return fr, times, (k + 1) * frame_s
+    return fr, times, (k + 1) * frame_s if stamp == "end" else k * frame_s
 
 
 def nees(sample: AttitudeSample, q_true):
@@ -61,12 +62,12 @@ def nees(sample: AttitudeSample, q_true):
     return float(e @ np.linalg.solve(sample.covariance_rad2, e))
 
 
-def run(st, cam, nav, slew, frames, rng, gyro=False, overrides=None):
+def run(st, cam, nav, slew, frames, rng, gyro=False, overrides=None, stamp="end"):
     """Drive the tracker; ``overrides[k]`` replaces frame k's detections (xy, intensity)."""
     log = []
     for k in frames:
         n = st.requested_n_exposures
-        fr, times, t_frame = frame(cam, nav, slew, k, n, rng)
+        fr, times, t_frame = frame(cam, nav, slew, k, n, rng, stamp=stamp)
         xy, inten = fr.xy, fr.intensity
         if overrides and k in overrides:
             xy, inten = overrides[k](fr)
@@ -113,11 +114,12 @@ def test_state_machine_lost_acquire_track_forced_loss_lost_track(cam, nav):
     assert st.mode == "lost" and st.state is None and st.requested_n_exposures == 1
 
 
-def test_closed_loop_20deg_per_s_10hz_never_drops_lock_and_reaches_210hz(cam, nav):
+@pytest.mark.parametrize("stamp", ["end", "start"])
+def test_closed_loop_20deg_per_s_10hz_never_drops_lock_and_reaches_210hz(cam, nav, stamp):
     rng = np.random.default_rng(22)
     slew = Slew(rng, 20.0)
     st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX, matcher="dkvlut")
-    log = run(st, cam, nav, slew, range(40), rng)
+    log = run(st, cam, nav, slew, range(40), rng, stamp=stamp)
     modes = [r.mode for *_, r in log]
     assert modes[0] == "acquire" and all(m == "track" for m in modes[1:])
     full = [(n, times, r) for _, n, times, r in log if n == 21]

@@ -5,7 +5,7 @@ detection is rotated into ICRS and matched to the nearest navigation star within
 radius (the same as re-projecting the catalog into the image and matching there, but in angle space,
 so it holds across the whole detector), one catalog star per detection; a detection with a second
 catalog star almost as near is ambiguous and left out. The attitude is refitted on all matches and the
-matching repeated once.
+matching repeated until the set of matches no longer changes.
 
 Acceptance. A wrong hypothesis built from three detections is a catalog triangle that happens to fit
 the measured one. For a triangle with sides known to ``±ε`` the expected number of such catalog
@@ -19,8 +19,10 @@ measured once per database. Under a wrong attitude each other detection lands wi
 radius ``r`` of some catalog star with probability ``p = ρ_eff π r²``. A hypothesis is accepted with
 ``3 + e`` matches only when ``λ · P(Binomial(n − 3, p) ≥ e) ≤ false_alarm`` (and ``e ≥ 1`` whenever a
 fourth detection exists), so the required number of confirming stars grows with loose tolerances,
-dense catalogs and many detections, and shrinks for precise measurements. Two different attitudes
-that both pass make the frame ambiguous (:func:`best_of`): failure is reported rather than a coin toss.
+dense catalogs and many detections, and shrinks for precise measurements. The verified attitude must
+also explain at least half of the twelve brightest detections (a thin triad can otherwise converge to a
+self-consistent wrong roll that matches only the stars around it). Two different attitudes that both
+pass make the frame ambiguous (:func:`best_of`): failure is reported rather than a coin toss.
 """
 
 from __future__ import annotations
@@ -32,6 +34,9 @@ import numpy as np
 
 from startracker.identify.frame import Frame
 
+_MAX_ROUNDS = 8
+_N_BRIGHT = 12  # brightest detections of which a verified attitude must explain at least half
+
 __all__ = ["Match", "fast_rotation", "triangle_false_rate", "required_matches", "verify", "match_detections", "select_matches", "best_of"]
 
 
@@ -42,7 +47,7 @@ class Match:
     Attributes
     ----------
     rot : ndarray, shape (3, 3)
-        Camera -> ICRS rotation matrix fitted on the first round of matches.
+        Camera -> ICRS rotation matrix fitted on the final matches.
     det : ndarray of int, shape (m,)
         Matched detections (frame indices).
     nav : ndarray of int, shape (m,)
@@ -232,10 +237,22 @@ def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, r
     det, nav = first[:2] if first is not None else match_detections(db, frame.v @ rot.T, tol)[:2]
     if len(det) < n_req:
         return None
-    # Refit on every match (the triad attitude is poor far from the triad) and match again.
-    rot = fast_rotation(frame.v[det], nav_vec[nav])
-    det2, nav2, dist = match_detections(db, frame.v @ rot.T, tol)
-    if len(det2) < n_req:
+    # Refit on every match and match again until the matches stop changing: the attitude of a thin
+    # triad can be off by many pixels far from it, and its first matches may include a wrong neighbour.
+    for _ in range(_MAX_ROUNDS):
+        rot = fast_rotation(frame.v[det], nav_vec[nav])
+        det2, nav2, dist = match_detections(db, frame.v @ rot.T, tol)
+        if len(det2) < n_req:
+            return None
+        if len(det2) == len(det) and np.array_equal(det2, det) and np.array_equal(nav2, nav):
+            break
+        det, nav = det2, nav2
+    else:
+        return None  # no stable set of matches: not a confident answer
+    # A correct attitude explains the bright detections: at least half of the brightest must match. (A
+    # thin triad can lead to a self-consistent wrong roll that matches only the stars near it.)
+    n_bright = min(frame.n, _N_BRIGHT)
+    if 2 * int(np.count_nonzero(det < n_bright)) < n_bright:
         return None
     rms = float(np.sqrt(np.mean(dist * dist)))  # chord ~ angle at these scales
     return Match(rot=rot, det=det2, nav=nav2, n_required=n_req, rms_rad=rms)

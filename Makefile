@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m envs slew --out demo_output
+	$(PY) -m envs slew --axis x --angle-deg 120 --out demo_output
 
 test: $(STAMP)
 	$(PY) -m pytest tests

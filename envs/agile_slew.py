@@ -74,7 +74,8 @@ class AgileSlewEnv(gym.Env):
 
     ## Starting State
 
-    Attitude uniformly random; target at a random angle in ``slew_angle_deg_range`` about a random axis; body at
+    Attitude uniformly random; target at a random angle in ``slew_angle_deg_range`` about a random axis; reset
+    ``options`` may fix ``slew_angle_deg``, ``slew_axis_body`` (3,) or ``q_target`` (4,), and ``faults``; body at
     rest with wheels at rest (``slew``), or a small random rate (``hold``). The star tracker starts lost and the
     first frame is taken at reset, so the first observation already carries an estimate if identification works.
 
@@ -266,6 +267,10 @@ class AgileSlewEnv(gym.Env):
             lo, hi = self.slew_angle_deg_range
             angle = np.radians(options.get("slew_angle_deg", rng.uniform(lo, hi)))
             axis = rng.normal(size=3)
+            if "slew_axis_body" in options:  # e.g. (1, 0, 0): cross-boresight for a camera on +z
+                axis = np.asarray(options["slew_axis_body"], dtype=np.float64)
+                if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) == 0:
+                    raise ValueError(f"options['slew_axis_body'] must be a non-zero 3-vector, got {options['slew_axis_body']!r}")
             axis /= np.linalg.norm(axis)
             self._q_target = quat_normalize(quat_multiply(q0, quat_from_rotvec(axis * angle)))
             w0 = np.zeros(3)

@@ -62,6 +62,16 @@ def _format_table(rows: list[dict], keys=None) -> str:
 
 
 # ---------------------------------------------------------------------------------------------------- slew
+_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def _slew_options(args) -> dict:
+    opts = {"slew_angle_deg": args.angle_deg}
+    if args.axis != "random":
+        opts["slew_axis_body"] = _AXES[args.axis]
+    return opts
+
+
 def cmd_slew(args) -> int:
     from experiments.episode import run_episode
     from experiments.telemetry import plot_episode, write_csv, write_json_atomic
@@ -86,7 +96,7 @@ def cmd_slew(args) -> int:
             policy=args.policy,
             seed=args.seed,
             env_kwargs=kwargs,
-            reset_options={"slew_angle_deg": args.angle_deg} if args.angle_deg is not None else None,
+            reset_options=_slew_options(args),
             keep_frame=not args.no_plots,
         )
     except (ValueError, TypeError) as exc:
@@ -219,6 +229,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--policy", default="eigenaxis", help="pd | eigenaxis | random | zero | module:Class")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--angle-deg", type=float, default=90.0, help="slew angle (default 90)")
+    s.add_argument("--axis", default="random", choices=["random", "x", "y", "z"],
+                   help="slew axis in the body frame; the camera looks along +z, so x and y stream stars across it")
     s.add_argument("--camera", default=None)
     s.add_argument("--fidelity", default=None, choices=["centroid", "pixel"])
     s.add_argument("--matcher", default=None)

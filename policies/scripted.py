@@ -56,6 +56,8 @@ class EigenaxisSlewPolicy(Policy):
         Bandwidth of the rate loop.
     capture_angle_rad : float
         Below this error the PD of :class:`PDPolicy` is used.
+    terminal_gain_rad_s : float
+        Near the target the commanded rate is at most ``terminal_gain · θ`` (exponential approach).
     """
 
     def __init__(
@@ -63,7 +65,8 @@ class EigenaxisSlewPolicy(Policy):
         spec: ControllerSpec,
         accel_margin: float = 0.7,
         rate_gain_rad_s: float = 4.0,
-        capture_angle_rad: float = np.radians(0.5),
+        capture_angle_rad: float = np.radians(0.05),
+        terminal_gain_rad_s: float = 0.8,
     ):
         super().__init__(spec)
         if not 0 < accel_margin <= 1:
@@ -71,6 +74,9 @@ class EigenaxisSlewPolicy(Policy):
         self.eta = float(accel_margin)
         self.k_rate = float(rate_gain_rad_s)
         self.capture = float(capture_angle_rad)
+        if terminal_gain_rad_s <= 0:
+            raise ValueError(f"terminal_gain_rad_s must be > 0, got {terminal_gain_rad_s}")
+        self.terminal_gain = float(terminal_gain_rad_s)
         self._pd = PDPolicy(spec, natural_frequency_rad_s=1.0, damping_ratio=0.9)
 
     def act(self, observation):
@@ -86,6 +92,9 @@ class EigenaxisSlewPolicy(Policy):
         # deceleration must also absorb the sampling delay of one control period
         w_ref_mag = min(self.spec.max_rate_rad_s, np.sqrt(2 * self.eta * alpha * theta))
         w_ref_mag = max(0.0, w_ref_mag - alpha * self.spec.control_period_s * 0.5)
+        # near the target the parabola's slope is infinite: blend into an exponential approach (time constant
+        # 1/terminal_gain) so the PD capture starts from a rate it can absorb without overshoot
+        w_ref_mag = min(w_ref_mag, self.terminal_gain * theta)
         w_ref = w_ref_mag * n
         torque = j @ (self.k_rate * (w_ref - w)) + np.cross(w, j @ w)
         return self.spec.body_torque_to_action(torque)

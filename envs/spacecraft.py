@@ -529,6 +529,41 @@ class Spacecraft:
             data.ctrl[:] = ctrl
             mujoco.mj_step(m, data)
 
+    def _step_recording(self, duration_s: float, n_steps: int, times_out: np.ndarray, quats_out: np.ndarray) -> None:
+        """``n_steps`` calls of :meth:`step` (``duration_s`` one substep each), writing the time and the attitude
+        after each into ``times_out[k]`` and ``quats_out[k]`` (the avionics' truth history).
+
+        The fast path of :meth:`step` is decided once for the whole span (its bound with the horizon of all
+        ``n_steps``); when it holds, no wheel limit can engage and each substep is the same ``mj_step`` that
+        :meth:`step` would run. Otherwise every substep goes through :meth:`step`.
+        """
+        data, m = self.data, self.model
+        speeds = data.qvel[self._sl_wv].tolist()
+        tau = self._torque_cmd.tolist()
+        wx, wy, wz = data.qvel[self._sl_omega].tolist()
+        wn = math.sqrt(wx * wx + wy * wy + wz * wz)
+        h_bound = self._lambda_max * wn + self._i_s * sum(abs(v) for v in speeds)
+        ex, ey, ez = data.xfrc_applied[self._bus_id, 3:6].tolist()
+        t_ext = math.sqrt(ex * ex + ey * ey + ez * ez)
+        coupling = (sum(abs(v) for v in tau) + t_ext + wn * h_bound) / self._lambda_min
+        horizon = 1.5 * float(duration_s) * n_steps
+        fast = abs(float(duration_s) - self._dt) <= 1e-6 * self._dt and all(
+            abs(sp) + horizon * (abs(tq) / self._i_s + coupling) < smax
+            for sp, tq, smax in zip(speeds, tau, self._speed_max_list)
+        )
+        sl = self._sl_quat
+        if fast:
+            data.ctrl[:] = self._torque_cmd
+            for k in range(n_steps):
+                mujoco.mj_step(m, data)
+                times_out[k] = data.time
+                quats_out[k] = data.qpos[sl]
+            return
+        for k in range(n_steps):
+            self.step(duration_s)
+            times_out[k] = data.time
+            quats_out[k] = data.qpos[sl]
+
     # ------------------------------------------------------------------ snapshots and pickling
     @property
     def state_size(self) -> int:

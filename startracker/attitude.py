@@ -13,9 +13,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
-from startracker.rotations import as_float_array, quat_from_matrix
+from startracker.rotations import _norm_last, _quat_from_matrix_unchecked, as_float_array, quat_from_matrix
 
 __all__ = ["WahbaSolution", "solve_wahba", "solve_wahba_batch", "solve_wahba_single", "RAD_TO_ARCSEC"]
 
@@ -93,6 +95,12 @@ def solve_wahba_batch(v_meas, v_ref, sigma_rad, mask=None):
     if not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
         raise ValueError("sigma_rad must be positive and finite")
     m = np.ones(b.shape[:2], dtype=bool) if mask is None else np.broadcast_to(np.asarray(mask, dtype=bool), b.shape[:2])
+    return _solve_wahba_batch_unchecked(b, r, sigma, m)
+
+
+def _solve_wahba_batch_unchecked(b: np.ndarray, r: np.ndarray, sigma, m: np.ndarray):
+    """The work of :func:`solve_wahba_batch` for unit float64 ``b``, ``r`` (B, K, 3), positive ``sigma``
+    broadcastable to (B, K) and a bool mask ``m`` (B, K); same results."""
     w = np.where(m, sigma**-2, 0.0)
     attitude_profile = np.einsum("bk,bki,bkj->bij", w, r, b)
     u, _, vt = np.linalg.svd(attitude_profile)
@@ -107,15 +115,29 @@ def solve_wahba_batch(v_meas, v_ref, sigma_rad, mask=None):
     eig_min = np.linalg.eigvalsh(info)[:, 0]
     scale = np.maximum(w.sum(axis=1), 1e-300)
     ok = (n_used >= 2) & (eig_min > 1e-10 * scale)
-    cov = np.full((len(b), 3, 3), 0.0)
-    cov[ok] = np.linalg.inv(info[ok])
-    cov[~ok] = np.diag([np.inf, np.inf, np.inf])
-    rot[~ok] = eye
-    q = quat_from_matrix(rot)
+    if ok.all():  # the usual case: no masked assignments (inv works matrix by matrix, so the same values)
+        cov = np.linalg.inv(info)
+    else:
+        cov = np.full((len(b), 3, 3), 0.0)
+        cov[ok] = np.linalg.inv(info[ok])
+        cov[~ok] = np.diag([np.inf, np.inf, np.inf])
+        rot[~ok] = eye
+    q = _quat_from_matrix_unchecked(rot)  # quat_from_matrix, bit for bit
     rb = np.einsum("bij,bkj->bki", rot, b)
-    ang = np.arctan2(np.linalg.norm(np.cross(rb, r), axis=-1), np.sum(rb * r, axis=-1))
-    rms = np.sqrt(np.sum(np.where(m, ang**2, 0.0), axis=1) / np.maximum(n_used, 1)) * RAD_TO_ARCSEC
+    ang = np.arctan2(_norm_last(_cross(rb, r)), np.add.reduce(rb * r, axis=-1))
+    rms = np.sqrt(np.add.reduce(np.where(m, ang**2, 0.0), axis=1) / np.maximum(n_used, 1)) * RAD_TO_ARCSEC
     return q, cov, rms, ok
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` over the last axis (length 3), the same products and differences without its overhead."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def solve_wahba(v_meas, v_ref, sigma_rad=1e-5) -> WahbaSolution:
@@ -198,22 +220,30 @@ def solve_wahba_single(v_meas, v_ref, sigma_rad=1e-5) -> WahbaSolution:
         return WahbaSolution(False, np.array([1.0, 0, 0, 0]), np.inf, np.diag([np.inf] * 3), len(b), "fewer than 2 vectors")
     nb = np.sqrt(np.einsum("ij,ij->i", b, b))
     nr = np.sqrt(np.einsum("ij,ij->i", r, r))
-    if not (np.all(nb > 0) and np.all(nr > 0)):
+    if not (nb.min() > 0 and nr.min() > 0):
         raise ValueError("v_meas and v_ref must not contain zero vectors")
     b = b / nb[:, None]
     r = r / nr[:, None]
-    sig = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), (len(b),))
-    if not np.all(np.isfinite(sig)) or np.any(sig <= 0):
-        raise ValueError("sigma_rad must be positive and finite")
-    w = sig**-2
-    wb = b * w[:, None]
+    if np.ndim(sigma_rad) == 0:  # one noise for all: scalar weights
+        s = float(sigma_rad)
+        if not (math.isfinite(s) and s > 0):
+            raise ValueError("sigma_rad must be positive and finite")
+        w1 = s**-2
+        wb = b * w1
+        wsum = w1 * len(b)
+    else:
+        sig = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), (len(b),))
+        if not np.all(np.isfinite(sig)) or np.any(sig <= 0):
+            raise ValueError("sigma_rad must be positive and finite")
+        w = sig**-2
+        wb = b * w[:, None]
+        wsum = float(w.sum())
     u, _, vt = np.linalg.svd(r.T @ wb)
     rot = u @ vt
     (a, b_, c), (d, e, f), (g, h, i) = rot.tolist()
     if a * (e * i - f * h) - b_ * (d * i - f * g) + c * (d * h - e * g) < 0:  # det(U) det(V) = -1
         u[:, 2] = -u[:, 2]
         rot = u @ vt
-    wsum = float(w.sum())
     info = wsum * np.eye(3) - wb.T @ b
     if np.linalg.eigvalsh(info)[0] <= 1e-10 * max(wsum, 1e-300):
         return WahbaSolution(False, np.array([1.0, 0, 0, 0]), np.inf, np.diag([np.inf] * 3), len(b), "vectors are parallel: attitude not observable")

@@ -606,9 +606,11 @@ def _spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr
     a = np.maximum(np.log(np.maximum(cp / np.maximum(thr_e, 1e-12), 1e-300)), err.min_log_ratio)
     r2 = 2.0 * se2 * a
     r = np.sqrt(r2)
-    frac = np.maximum(1.0 - np.exp(-a), 1e-6)
-    m2 = se2 * (1.0 - a * np.exp(-a) / frac)
-    l2 = length**2 / 12.0
+    exp_a = np.exp(-a)
+    frac = np.maximum(1.0 - exp_a, 1e-6)
+    m2 = se2 * (1.0 - a * exp_a / frac)
+    len2, len3 = length**2, length**3
+    l2 = len2 / 12.0
     if intensified:
         ph_cross = f2 * (sigma_o**2 + c_splash * m2 / frac) / s_safe
         ph_along = f2 * (sigma_o**2 + l2 + c_splash * (m2 + l2) / frac) / s_safe
@@ -616,15 +618,19 @@ def _spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr
         ph_cross = f2 * m2 / (s_safe * frac)
         ph_along = f2 * (m2 + l2) / (s_safe * frac)
     cap = total_e * frac
-    a_cross = np.pi * r2**2 / 4 + (2 * r) ** 3 * length / 12
-    a_along = np.pi * r2**2 / 4 + 2 * r * length**3 / 12 + np.pi * r2 * length**2 / 4
-    bg_cross = var_b * a_cross / np.maximum(cap, 1e-12) ** 2
-    bg_along = var_b * a_along / np.maximum(cap, 1e-12) ** 2
+    # (repeated subexpressions computed once: the same operations, so the same values)
+    disc = np.pi * r2**2 / 4
+    cap2 = np.maximum(cap, 1e-12) ** 2
+    a_cross = disc + (2 * r) ** 3 * length / 12
+    a_along = disc + 2 * r * len3 / 12 + np.pi * r2 * len2 / 4
+    bg_cross = var_b * a_cross / cap2
+    bg_along = var_b * a_along / cap2
     # support noise: pixels near the threshold join or leave the component at random, each carrying about T;
     # Σ p(1−p) T² x² over the edge ≈ (1/√π) T σ_b σ_e² / R · ∮ x² dl  (ring width σ_b / |∇s|, |∇s| = T R / σ_e²)
-    edge_k = (1.0 / np.sqrt(np.pi)) * thr_e * np.sqrt(var_b) * se2 / np.maximum(r, 1e-6) / np.maximum(cap, 1e-12) ** 2
-    bg_cross = bg_cross + edge_k * (2 * length * r2 + np.pi * r2 * r)
-    bg_along = bg_along + edge_k * (length**3 / 6 + np.pi * r * length**2 / 2 + np.pi * r2 * r + 2 * length * r2)
+    edge_k = (1.0 / np.sqrt(np.pi)) * thr_e * np.sqrt(var_b) * se2 / np.maximum(r, 1e-6) / cap2
+    side, ring = 2 * length * r2, np.pi * r2 * r
+    bg_cross = bg_cross + edge_k * (side + ring)
+    bg_along = bg_along + edge_k * (len3 / 6 + np.pi * r * len2 / 2 + ring + side)
     lock_cross = (1.0 - m2 / se2) ** 2 / 12.0
     lock_along = (1.0 - (m2 + l2) / (se2 + l2)) ** 2 / 12.0
     var_cross = err.photon_factor * ph_cross + err.background_factor * bg_cross + err.locking_factor * lock_cross
@@ -724,8 +730,7 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
         se2 = np.where(kind == KIND_COSMIC_RAY, _COSMIC_SIGMA_PX**2, model.sigma_px**2) + 1.0 / 12.0
         r_exp = np.sqrt(2.0 * se2 * np.log(np.maximum(peak_e / (k_sigma * np.sqrt(var_bd)), 1.0)))
         reach = r_exp + 0.5 * length[idx]
-        tree = cKDTree(truth_xy, leafsize=32, balanced_tree=False, compact_nodes=False)
-        pairs = tree.query_pairs(2.0 * float(reach.max()) + 1e-9, output_type="ndarray")
+        pairs = _candidate_pairs(truth_xy, 2.0 * float(reach.max()) + 1e-9)
         if len(pairs):
             dxy = truth_xy[pairs[:, 0]] - truth_xy[pairs[:, 1]]
             pairs = pairs[dxy[:, 0] ** 2 + dxy[:, 1] ** 2 < (reach[pairs[:, 0]] + reach[pairs[:, 1]]) ** 2]
@@ -786,6 +791,30 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
         cat["star"][order].astype(np.int64), cat["exposure"][order].astype(np.int64),
         cat["kind"][order].astype(np.int64), cat["truth_xy"][order],
     )
+
+
+_SWEEP_MAX_PAIRS = 200_000
+
+
+def _candidate_pairs(xy: np.ndarray, r: float) -> np.ndarray:
+    """Pairs (i, j), i < j, of points closer than ``r`` along x (a superset of the pairs within ``r``), by a sort
+    and sweep over x. The caller's exact distance test then leaves the same set as a k-d tree's
+    ``query_pairs(r)`` would (every pair it keeps is closer than ``r``), in another order; only the set is used.
+    Falls back to the k-d tree when the x-window holds too many candidates."""
+    n = len(xy)
+    o = np.argsort(xy[:, 0], kind="stable")
+    xs = xy[o, 0]
+    cnt = np.searchsorted(xs, xs + r, side="right") - np.arange(1, n + 1)
+    tot = int(cnt.sum())
+    if tot > _SWEEP_MAX_PAIRS:
+        tree = cKDTree(xy, leafsize=32, balanced_tree=False, compact_nodes=False)
+        return tree.query_pairs(r, output_type="ndarray")
+    first = np.repeat(np.arange(n), cnt)
+    second = np.arange(tot) - np.repeat(np.cumsum(cnt) - cnt, cnt) + first + 1
+    a, b = o[first], o[second]
+    near = np.abs(xy[a, 1] - xy[b, 1]) <= r
+    a, b = a[near], b[near]
+    return np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
 
 
 def _pair_groups(n: int, pairs: np.ndarray):

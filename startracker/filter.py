@@ -555,6 +555,12 @@ class AttitudeEKF:
         if np.any(norms < 1e-12):
             raise ValueError("q_meas_body_to_world contains a zero quaternion")
         qm = qm / norms[:, None]
+        return self._process_unit(wg, tg, qm, tm, rs, method)
+
+    def _process_unit(self, wg, tg, qm, tm, rs, method: str = "auto") -> np.ndarray:
+        """The work of :meth:`process` for inputs it has validated (or that the caller built to its contract):
+        float64 ``wg`` (G, 3), ``tg`` (G,), unit ``qm`` (M, 4), ``tm`` (M,), ``rs`` (M, 3, 3)."""
+        m = len(qm)
         if method == "batch" or (method == "auto" and m >= _AUTO_BATCH_MIN_SAMPLES):
             return self._process_batch(wg, tg, qm, tm, rs)
         qm_l = qm.tolist()

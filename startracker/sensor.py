@@ -53,6 +53,10 @@ from startracker.identify import METHODS as ID_METHODS
 from startracker.identify import IdentificationResult, identify
 from startracker.optics import Camera
 from startracker.rotations import (
+    _CONJ,
+    _quat_multiply_unchecked,
+    _quat_normalize_unchecked,
+    _quat_to_rotvec_unchecked,
     as_float_array,
     quat_conjugate,
     quat_multiply,
@@ -60,14 +64,14 @@ from startracker.rotations import (
     quat_to_rotvec,
 )
 from startracker.track import (
+    _attitudes_per_instant_unchecked,
+    _match_stars_unchecked,
+    _predict_star_positions_unchecked,
+    _prediction_covariance_fast,
+    _prediction_sigma_px_fast,
     MATCH_METHODS,
     RADIUS_K_SIGMA,
-    attitudes_per_instant,
-    match_stars,
-    predict_star_positions,
-    prediction_covariance,
     prediction_radius_px,
-    prediction_sigma_px,
 )
 
 __all__ = ["StarTracker", "FrameResult", "AttitudeSample", "MotionState", "MODES"]
@@ -380,11 +384,11 @@ class StarTracker:
         # The next frame's last exposure: its centre is one interval after the last frame's centre, and its
         # exposures spread over at most a frame period.
         horizon = max(period, self._last_exp_centre + 1.5 * period - st.t_s)
-        sigma = prediction_sigma_px(self.camera, st.cov_theta_rad2, horizon, st.cov_omega, self._cov_alpha_total(st))
+        sigma = _prediction_sigma_px_fast(self.camera, st.cov_theta_rad2, horizon, st.cov_omega, self._cov_alpha_total(st))
         w_cam = self.camera.r_cam_to_body.T @ st.omega_body
         travel_px = float(np.hypot(w_cam[0], w_cam[1])) * period * self.camera.focal_length_px
         n_sep = n_rate if self.shift_k_sigma == 0 or sigma == 0 else int(travel_px / (2.0 * self.shift_k_sigma * sigma))
-        return int(np.clip(min(n_rate, n_sep), 1, self.max_exposures))
+        return min(max(min(n_rate, n_sep), 1), self.max_exposures)  # np.clip on Python ints
 
     # ------------------------------------------------------------------ one frame
     def process_frame(self, xy, intensity, exposure_times, frame_time, omega_body=None, q_body_prior=None) -> FrameResult:
@@ -425,7 +429,12 @@ class StarTracker:
         t_frame = float(as_float_array(frame_time, "frame_time"))
         gyro = None if omega_body is None else as_float_array(omega_body, "omega_body", last_dim=3, ndim=1)
         prior = None if q_body_prior is None else quat_normalize(as_float_array(q_body_prior, "q_body_prior", 4, 1))
+        return self._process_frame_checked(xy, intensity, t_exp, t_frame, gyro, prior)
 
+    def _process_frame_checked(self, xy, intensity, t_exp, t_frame, gyro, prior) -> FrameResult:
+        """The work of :meth:`process_frame` on inputs in the form its checks produce: float64 ``xy`` (K, 2),
+        positive float64 ``intensity`` (K,) or None, strictly increasing float64 ``t_exp`` (N,), float ``t_frame``,
+        float64 ``gyro`` (3,) or None, unit canonical float64 ``prior`` (4,) (as ``quat_normalize`` returns) or None."""
         if self._last_frame_time is not None and t_frame <= self._last_frame_time:
             self.reset()  # time went backwards: a new run, nothing of the old one is valid
         if self._mode == "track":
@@ -561,7 +570,7 @@ class StarTracker:
         t0 = time.perf_counter()
         omega, alpha, cov_w, cov_a = self._propagation(st, gyro, t_frame)
         cov_a = cov_a + extra_var_alpha * np.eye(3)
-        sig_pred = prediction_sigma_px(self.camera, st.cov_theta_rad2, t_exp - st.t_s, cov_w, cov_a)
+        sig_pred = _prediction_sigma_px_fast(self.camera, st.cov_theta_rad2, t_exp - st.t_s, cov_w, cov_a)
         r = prediction_radius_px(self.centroid_sigma_px, sig_pred, self.radius_k_sigma, self.radius_min_px, self.radius_max_px)
         if len(t_exp) > 1:
             # Spots of one star one exposure apart must be well separated against the prediction error,
@@ -572,14 +581,17 @@ class StarTracker:
                 latency = (time.perf_counter() - t0) * 1e3
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
                                        f"apart, prediction σ {sig_pred:.1f} px)", [], 0, 0, r, latency)
-        pred = predict_star_positions(self.camera, self.catalog, st.q_body_to_icrs, t_exp, st.t_s, omega, alpha, margin_px=r)
-        idx = match_stars(pred.xy, xy, r, method=self.matcher)
+        # predict_star_positions and match_stars on the tracker's own checked state (their checks skipped)
+        pred = _predict_star_positions_unchecked(
+            self.camera, self.catalog, _quat_normalize_unchecked(np.asarray(st.q_body_to_icrs, dtype=np.float64)),
+            t_exp, float(st.t_s), np.asarray(omega, dtype=np.float64), np.asarray(alpha, dtype=np.float64), float(r))
+        idx = _match_stars_unchecked(pred.xy, xy, float(r), self.matcher)
         latency = (time.perf_counter() - t0) * 1e3
         n_pred = int(pred.on_detector.sum())
         if n_pred == 0:
             return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
-        inst = attitudes_per_instant(xy, idx, pred, self.camera, self.catalog, self.centroid_sigma_px,
-                                     self.min_stars_per_instant, self.outlier_k_sigma)
+        inst = _attitudes_per_instant_unchecked(xy, idx, pred, self.camera, self.catalog, self.centroid_sigma_px,
+                                                self.min_stars_per_instant, self.outlier_k_sigma)
         n_matched = int(np.sum(inst.assignment >= 0))
         frac = n_matched / n_pred
         ok_i = inst.ok
@@ -601,8 +613,8 @@ class StarTracker:
                                    f"{np.median(n_st):.0f}): matched one exposure off", [], **base)
         # Innovation: solved vs predicted attitude at each solved instant.
         sel = np.flatnonzero(ok_i)
-        delta = quat_to_rotvec(quat_multiply(quat_conjugate(pred.q_body_to_icrs[sel]), inst.q_body_to_icrs[sel]))
-        s = prediction_covariance(st.cov_theta_rad2, inst.times_s[sel] - st.t_s, cov_w, cov_a) + inst.covariance_rad2[sel]
+        delta = _quat_to_rotvec_unchecked(_quat_multiply_unchecked(pred.q_body_to_icrs[sel] * _CONJ, inst.q_body_to_icrs[sel]))
+        s = _prediction_covariance_fast(st.cov_theta_rad2, inst.times_s[sel] - st.t_s, cov_w, cov_a) + inst.covariance_rad2[sel]
         nis = float(np.mean(np.einsum("ni,ni->n", delta, np.linalg.solve(s, delta[..., None])[..., 0])))
         if nis > self.innovation_gate:
             return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", [], **base)
@@ -628,14 +640,14 @@ class StarTracker:
         elif len(t) >= 3:
             # Least-squares line θ(τ) = c + ω τ through the rotation vectors relative to the last instant:
             # its slope is the rate at the mean time.
-            theta = quat_to_rotvec(quat_multiply(quat_conjugate(q_ref)[None], q))
+            theta = _quat_to_rotvec_unchecked(_quat_multiply_unchecked((q_ref * _CONJ)[None], q))
             tau = t - t_ref
             sxx = float(np.sum((tau - tau.mean()) ** 2))
             w_fit = ((tau - tau.mean()) @ (theta - theta.mean(axis=0))) / sxx
             meas = (float(t.mean()), w_fit, covs.mean(axis=0) / sxx)
         elif t_ref > st.t_s:
             dt = t_ref - st.t_s
-            rotvec = quat_to_rotvec(quat_multiply(quat_conjugate(st.q_body_to_icrs), q_ref))
+            rotvec = _quat_to_rotvec_unchecked(_quat_multiply_unchecked(np.asarray(st.q_body_to_icrs, dtype=np.float64) * _CONJ, q_ref))
             meas = (st.t_s + dt / 2, rotvec / dt, (st.cov_theta_rad2 + cov_ref) / dt**2)
         else:
             meas = None

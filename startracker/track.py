@@ -36,21 +36,25 @@ missed with probability 1.5e-8), clipped to ``[r_min, r_max]``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from startracker.attitude import solve_wahba_batch
+from startracker.attitude import _cross, _solve_wahba_batch_unchecked
 from startracker.catalog import StarCatalog
 from startracker.kvector import KVector
 from startracker.optics import Camera
+from startracker.scene import _project_unchecked
 from startracker.rotations import (
+    _norm_last,
+    _quat_integrate_unchecked,
+    _quat_multiply_unchecked,
+    _quat_normalize_unchecked,
+    _quat_to_matrix_unchecked,
     as_float_array,
-    quat_integrate,
-    quat_multiply,
     quat_normalize,
-    quat_to_matrix,
 )
 
 __all__ = [
@@ -333,6 +337,11 @@ def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut") ->
     pred = _check_points(predicted_xy, "predicted_xy")
     obs = _check_points(observed_xy, "observed_xy")
     r = _check_radius(radius_px)
+    return _match_stars_unchecked(pred, obs, r, method)
+
+
+def _match_stars_unchecked(pred: np.ndarray, obs: np.ndarray, r: float, method: str) -> np.ndarray:
+    """:func:`match_stars` for checked float64 (W, 2) and (Q, 2) arrays and a float radius."""
     if len(pred) == 0 or len(obs) == 0:
         return np.full(len(obs), -1, dtype=np.int64)
     if method == "dkvlut":
@@ -431,10 +440,16 @@ def predict_star_positions(
     margin = float(as_float_array(margin_px, "margin_px"))
     if margin < 0:
         raise ValueError(f"margin_px must be >= 0, got {margin_px}")
+    return _predict_star_positions_unchecked(camera, catalog, q0, t, t_ref, w, a, margin)
 
-    q_body = quat_integrate(q0, w, t - t_ref, a).reshape(len(t), 4)
-    q_cam = quat_multiply(q_body, np.asarray(camera.q_cam_to_body))  # cam -> body -> icrs
-    r_cam_to_icrs = quat_to_matrix(q_cam)  # (N, 3, 3)
+
+def _predict_star_positions_unchecked(camera: Camera, catalog: StarCatalog, q0: np.ndarray, t: np.ndarray,
+                                      t_ref: float, w: np.ndarray, a: np.ndarray, margin: float) -> PredictedStars:
+    """The work of :func:`predict_star_positions`: ``q0`` a unit canonical (4,) float64 quaternion (as
+    ``quat_normalize`` returns), ``t`` (N,) float64, ``w`` and ``a`` (3,) float64, ``margin`` >= 0."""
+    q_body = _quat_integrate_unchecked(q0, w, t - t_ref, a).reshape(len(t), 4)
+    q_cam = _quat_multiply_unchecked(q_body, np.asarray(camera.q_cam_to_body))  # cam -> body -> icrs
+    r_cam_to_icrs = _quat_to_matrix_unchecked(q_cam)  # (N, 3, 3)
 
     # Candidate stars: one cone around the mean boresight wide enough for the whole frame.
     bore = r_cam_to_icrs[:, :, 2]
@@ -450,7 +465,7 @@ def predict_star_positions(
         return PredictedStars(np.empty((0, 2)), e, e.copy(), np.empty(0, dtype=bool), t, q_body)
     v_icrs = catalog.vectors[cand]  # (S, 3)
     v_cam = v_icrs[None] @ r_cam_to_icrs  # (R^T v)^T = v^T R per instant, (N, S, 3)
-    xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True)
+    xy, in_front = _project_unchecked(camera, v_cam.reshape(-1, 3))  # camera.project without its checks
     wdt, hgt = camera.resolution
     x, y = xy[:, 0], xy[:, 1]
     keep = in_front & (x >= -0.5 - margin) & (x <= wdt - 0.5 + margin) & (y >= -0.5 - margin) & (y <= hgt - 0.5 + margin)
@@ -494,6 +509,20 @@ def prediction_covariance(cov_theta_body_rad2, dt_s, cov_omega_body=0.0, cov_alp
     return p + pw * dt**2 + pa * dt**4 / 4.0
 
 
+def _is_cov3(a) -> bool:
+    return type(a) is np.ndarray and a.shape == (3, 3) and a.dtype == np.float64
+
+
+def _prediction_covariance_fast(cov_theta_body_rad2, dt_s, cov_omega_body, cov_alpha_body) -> np.ndarray:
+    """:func:`prediction_covariance` (same result) skipping the checks when the covariances are (3, 3) float64
+    arrays and ``dt_s`` a float64 array or float, as the tracker's own state holds them."""
+    p, pw, pa = cov_theta_body_rad2, cov_omega_body, cov_alpha_body
+    if not (_is_cov3(p) and _is_cov3(pw) and _is_cov3(pa)):
+        return prediction_covariance(p, dt_s, pw, pa)
+    dt = np.asarray(dt_s, dtype=np.float64)[..., None, None]
+    return p + pw * dt**2 + pa * dt**4 / 4.0
+
+
 def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, dt_s=0.0, cov_omega_body=0.0, cov_alpha_body=0.0) -> float:
     """1σ per-axis prediction error of a spot, px, after propagating an attitude for ``dt_s``.
 
@@ -519,11 +548,21 @@ def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, dt_s=0.0, cov_omega
     """
     dt = float(np.max(np.abs(as_float_array(dt_s, "dt_s")))) if np.size(dt_s) else 0.0
     pt = prediction_covariance(cov_theta_body_rad2, dt, cov_omega_body, cov_alpha_body)
+    return _sigma_px_from_cov(camera, pt)
+
+
+def _prediction_sigma_px_fast(camera: Camera, cov_theta_body_rad2, dt_s, cov_omega_body, cov_alpha_body) -> float:
+    """:func:`prediction_sigma_px` (same result) for a finite float64 ``dt_s`` (float or array) from the tracker."""
+    dt = float(np.max(np.abs(dt_s))) if np.size(dt_s) else 0.0
+    return _sigma_px_from_cov(camera, _prediction_covariance_fast(cov_theta_body_rad2, dt, cov_omega_body, cov_alpha_body))
+
+
+def _sigma_px_from_cov(camera: Camera, pt: np.ndarray) -> float:
     rcb = camera.r_cam_to_body
-    pc = rcb.T @ pt @ rcb
+    p00, p11, p22 = (rcb.T @ pt @ rcb).reshape(-1)[::4].tolist()
     w, h = camera.resolution
-    rho = float(np.hypot(w, h)) / 2.0
-    return float(np.sqrt(camera.focal_length_px**2 * max(pc[0, 0], pc[1, 1], 0.0) + rho**2 * max(pc[2, 2], 0.0)))
+    rho = math.hypot(w, h) / 2.0
+    return math.sqrt(camera.focal_length_px**2 * max(p00, p11, 0.0) + rho**2 * max(p22, 0.0))
 
 
 def prediction_radius_px(
@@ -644,6 +683,11 @@ def attitudes_per_instant(
         raise ValueError(f"sigma_px must be positive, got {sigma_px}")
     if int(min_stars) < 2:
         raise ValueError(f"min_stars must be >= 2, got {min_stars}")
+    return _attitudes_per_instant_unchecked(obs, idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma)
+
+
+def _attitudes_per_instant_unchecked(obs, idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma):
+    """The work of :func:`attitudes_per_instant` for checked inputs (``obs`` float64 (K, 2), ``idx`` int64 (K,))."""
     n_t = len(prediction.times_s)
     assign = _unique_assignment(obs, prediction.xy, idx)
     q_obs = np.flatnonzero(assign >= 0)
@@ -667,10 +711,14 @@ def attitudes_per_instant(
     sigma_rad = sigma_px / camera.focal_length_px
     thr = outlier_k_sigma * sigma_rad
     n_out = 0
+    # solve_wahba_batch's input checks and normalisation, once for all passes
+    b_unit = v_body / _norm_last(v_body, keepdims=True)
+    r_unit = v_ref / _norm_last(v_ref, keepdims=True)
+    sigma_b = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), b_unit.shape[:2])
     for _ in range(kmax):  # a handful of passes: one outlier per instant per pass
-        q, cov, rms, ok = solve_wahba_batch(v_body, v_ref, sigma_rad, mask=mask)
-        rb = np.einsum("bij,bkj->bki", quat_to_matrix(q), v_body)
-        ang = np.arctan2(np.linalg.norm(np.cross(rb, v_ref), axis=-1), np.sum(rb * v_ref, axis=-1))
+        q, cov, rms, ok = _solve_wahba_batch_unchecked(b_unit, r_unit, sigma_b, mask)
+        rb = np.einsum("bij,bkj->bki", _quat_to_matrix_unchecked(q), v_body)
+        ang = np.arctan2(_norm_last(_cross(rb, v_ref)), np.add.reduce(rb * v_ref, axis=-1))
         ang = np.where(mask, ang, -1.0)
         worst = np.argmax(ang, axis=1)
         bad = (ang[np.arange(n_t), worst] > thr) & (mask.sum(axis=1) > 2)

@@ -25,7 +25,7 @@ import numpy as np
 from startracker.attitude import RAD_TO_ARCSEC, solve_wahba_single
 from startracker.catalog import StarCatalog
 from startracker.identify.brightness import identify_brightness
-from startracker.identify.database import StarDatabase, build_database, clear_database_cache
+from startracker.identify.database import StarDatabase, build_database, clear_database_cache, default_database
 from startracker.identify.frame import IdentifyOptions, prepare_frame
 from startracker.identify.pattern_string import identify_pattern_string
 from startracker.identify.pyramid import identify_pyramid
@@ -51,6 +51,7 @@ METHODS = {
 }
 
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+_POOL = {"pyramid": 12, "voting": 20, "brightness": 10}  # default hypothesis pools (max_stars)
 _DEFAULT_OPTIONS = IdentifyOptions()
 _OPTIONS_CACHE: dict = {}
 
@@ -122,13 +123,13 @@ def identify(
     if method == "brightness" and intensities is None:
         raise ValueError("intensities are required for method='brightness'")
     if database is None:
-        database = build_database(catalog, camera)
+        database = default_database(catalog, camera)
     elif not isinstance(database, StarDatabase):
         raise TypeError(f"database must be a StarDatabase, got {type(database).__name__}")
     elif database.camera != camera:
         raise ValueError("database was built for another camera")
     t0 = time.perf_counter()
-    frame = prepare_frame(xy, camera, intensities, opts)
+    frame = prepare_frame(xy, camera, intensities, opts, n_angles=None if method == "string" else (opts.max_stars or _POOL[method]))
     k = frame.n_input
     star_ids = np.full(k, -1, dtype=np.int64)
 

@@ -157,7 +157,7 @@ def identify_brightness(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match 
     """Brightness-referenced identification; returns (match, status, hypotheses verified)."""
     if frame.mag is None:
         raise ValueError("intensities are required for method='brightness'")
-    n = min(frame.n, opts.max_stars or 10)
+    n = min(frame.n, opts.max_stars or 10, len(frame.angle_rad))
     if n < 3:
         return None, "fewer than 3 usable detections", 0
     found: list[Match] = []

@@ -23,9 +23,10 @@ from startracker.identify.pairs import StarPairCatalog, build_pair_catalog
 from startracker.identify.pattern_string import PatternCatalog, build_pattern_catalog
 from startracker.optics import Camera
 
-__all__ = ["StarDatabase", "build_database", "clear_database_cache"]
+__all__ = ["StarDatabase", "build_database", "clear_database_cache", "default_database"]
 
 _CACHE: "weakref.WeakKeyDictionary[StarCatalog, dict]" = weakref.WeakKeyDictionary()
+_LAST: list = []  # [weakref(catalog), camera, database] of the last default look-up
 
 
 @dataclass(frozen=True, eq=False)
@@ -224,6 +225,17 @@ def build_database(
     return db
 
 
+def default_database(catalog: StarCatalog, camera: Camera) -> StarDatabase:
+    """The cached default database of (catalog, camera), remembering the last look-up by identity."""
+    last = _LAST
+    if last and last[0]() is catalog and last[1] is camera:
+        return last[2]
+    db = build_database(catalog, camera)
+    _LAST[:] = [weakref.ref(catalog), camera, db]
+    return db
+
+
 def clear_database_cache() -> None:
     """Forget every cached database."""
     _CACHE.clear()
+    _LAST.clear()

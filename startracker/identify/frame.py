@@ -147,9 +147,9 @@ class Frame:
         Row of each usable detection in the caller's ``xy``.
     n_input : int
         Rows of the caller's ``xy``.
-    angle_rad : ndarray, shape (n, n)
-        Inter-star angles.
-    pair_tol_rad : ndarray, shape (n, n)
+    angle_rad : ndarray, shape (m, m)
+        Inter-star angles of the first ``m <= n`` detections (the hypothesis pool, or all).
+    pair_tol_rad : ndarray, shape (m, m)
         Half-width of the window of each pair's angle.
     match_tol_rad : float
         Verification radius.
@@ -174,8 +174,10 @@ class Frame:
         return len(self.v)
 
 
-def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions) -> Frame:
+def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angles: int | None = None) -> Frame:
     """Validate and prepare detections (see the module docstring).
+
+    ``n_angles`` limits the angle tables to the brightest detections (None: all).
 
     Raises
     ------
@@ -212,7 +214,8 @@ def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions) -> Fra
         dup = np.triu(cosm > np.cos(dup_rad), 1).any(axis=0)
         keep = ~dup
         order, v, cosm = order[keep], v[keep], cosm[np.ix_(keep, keep)]
-    ang = np.arccos(np.clip(cosm, -1.0, 1.0))
+    m = len(v) if n_angles is None else min(len(v), n_angles)
+    ang = np.arccos(np.clip(cosm[:m, :m], -1.0, 1.0))
     n_dropped = k - len(order)
     pair_tol = np.hypot(opts.pair_sigmas * np.sqrt(2.0) * sigma_rad, floor) + opts.aberration_scale * ang
     match_tol = float(np.hypot(opts.match_sigmas * sigma_rad, floor))

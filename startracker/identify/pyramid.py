@@ -166,8 +166,8 @@ def confirm_fourth(db, frame: Frame, det3, hyp: np.ndarray, pool: int):
     ok : ndarray of bool, shape (H,)
     rot : ndarray, shape (H, 3, 3)
         Triad attitudes.
-    first : list of (det, nav, dist)
-        The unambiguous matches of every detection under each hypothesis.
+    first : list of (det, nav, dist) or None
+        The unambiguous matches of every detection under each confirmed hypothesis.
     """
     v = frame.v
     nav = db.nav.vectors
@@ -178,13 +178,10 @@ def confirm_fourth(db, frame: Frame, det3, hyp: np.ndarray, pool: int):
     dist, idx = db.tree.query(w, k=2, distance_upper_bound=3.0 * chord)
     dist = dist.reshape(len(hyp), n, 2)
     idx = idx.reshape(len(hyp), n, 2)
-    ok = np.zeros(len(hyp), dtype=bool)
-    first = []
-    for h in range(len(hyp)):  # a handful of hypotheses
-        m = select_matches(dist[h], idx[h], chord)
-        first.append(m)
-        fourth = (m[0] < pool) & (m[0] != det3[0]) & (m[0] != det3[1]) & (m[0] != det3[2])
-        ok[h] = bool(fourth.any())
+    others = np.ones(min(pool, n), dtype=bool)
+    others[list(det3)] = False
+    ok = (dist[:, : len(others), 0][:, others] <= chord).any(axis=1)
+    first = [select_matches(dist[h], idx[h], chord) if ok[h] else None for h in range(len(hyp))]
     return ok, rot, first
 
 
@@ -193,7 +190,7 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | N
     n = frame.n
     if n < 3:
         return None, "fewer than 3 usable detections", 0
-    pool = min(n, opts.max_stars or 12)
+    pool = min(n, opts.max_stars or 12, len(frame.angle_rad))
     cands = PairCandidates(db.pairs, frame)
     n_stars = float(db.n_stars)
     n_hyp = 0
@@ -214,6 +211,7 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | N
         ok, rot, first = confirm_fourth(db, frame, (i, j, k), hyp, max(pool, 4))
         if n == 3:
             ok[:] = True  # no fourth star exists: the false-alarm rule alone decides
+            first = [None] * len(hyp)
         lam = triangle_false_rate(frame, i, j, k, n_stars, db.clumping3)
         matches = []
         for h in np.flatnonzero(ok):  # hypotheses that survived the pyramid: a handful

@@ -19,10 +19,13 @@ measured once per database. Under a wrong attitude each other detection lands wi
 radius ``r`` of some catalog star with probability ``p = ρ_eff π r²``. A hypothesis is accepted with
 ``3 + e`` matches only when ``λ · P(Binomial(n − 3, p) ≥ e) ≤ false_alarm`` (and ``e ≥ 1`` whenever a
 fourth detection exists), so the required number of confirming stars grows with loose tolerances,
-dense catalogs and many detections, and shrinks for precise measurements. The verified attitude must
-also explain at least half of the twelve brightest detections (a thin triad can otherwise converge to a
-self-consistent wrong roll that matches only the stars around it). Two different attitudes that both
-pass make the frame ambiguous (:func:`best_of`): failure is reported rather than a coin toss.
+dense catalogs and many detections, and shrinks for precise measurements.
+
+Misfit test. The unmatched detections must look like false stars: at random places, so few of them have
+a catalog star just beyond the radius (between r and 3r); more near misses than a Poisson law allows at
+1e-3 mean the attitude is slightly wrong (a thin triad can converge to a self-consistent wrong roll that
+matches only the stars around it) and the hypothesis is refused. Two different attitudes that both pass
+make the frame ambiguous (:func:`best_of`): failure is reported rather than a coin toss.
 """
 
 from __future__ import annotations
@@ -35,7 +38,8 @@ import numpy as np
 from startracker.identify.frame import Frame
 
 _MAX_ROUNDS = 8
-_N_BRIGHT = 12  # brightest detections of which a verified attitude must explain at least half
+_STABLE_FIT = 10  # matches above which a refit that only adds matches ends the refinement
+_MISFIT_P = 1e-3  # near misses less likely than this under a correct attitude reject it
 
 __all__ = ["Match", "fast_rotation", "triangle_false_rate", "required_matches", "verify", "match_detections", "select_matches", "best_of"]
 
@@ -113,6 +117,18 @@ def triangle_false_rate(frame: Frame, i: int, j: int, k: int, n_stars: float, cl
     radius = a * b * c / (4.0 * area) if area > 0 else np.inf
     radius = min(radius, 10.0)
     return 2.0 * n_stars**3 * eps**3 * radius / math.pi * clumping
+
+
+def _poisson_tail(mu: float, k: int) -> float:
+    """P(Poisson(mu) >= k)."""
+    if k <= 0:
+        return 1.0
+    term = math.exp(-mu)
+    cdf = 0.0
+    for x in range(k):
+        cdf += term
+        term *= mu / (x + 1)
+    return max(0.0, 1.0 - cdf)
 
 
 def _binom_tail(n: int, p: float, e: int) -> float:
@@ -239,21 +255,34 @@ def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, r
         return None
     # Refit on every match and match again until the matches stop changing: the attitude of a thin
     # triad can be off by many pixels far from it, and its first matches may include a wrong neighbour.
+    chord = 2.0 * math.sin(tol / 2.0)
     for _ in range(_MAX_ROUNDS):
         rot = fast_rotation(frame.v[det], nav_vec[nav])
-        det2, nav2, dist = match_detections(db, frame.v @ rot.T, tol)
+        raw, idx = db.tree.query(frame.v @ rot.T, k=2, distance_upper_bound=3.0 * chord)
+        det2, nav2, dist = select_matches(raw, idx, chord)
         if len(det2) < n_req:
             return None
         if len(det2) == len(det) and np.array_equal(det2, det) and np.array_equal(nav2, nav):
             break
+        # Stable enough: an attitude fitted on many stars that keeps every match and adds only a few.
+        grown = False
+        if len(det) >= _STABLE_FIT and len(det2) - len(det) <= max(2, len(det) // 10):
+            kept = np.isin(det2, det)
+            grown = int(kept.sum()) == len(det) and np.array_equal(nav2[kept], nav)
         det, nav = det2, nav2
+        if grown:
+            break
     else:
         return None  # no stable set of matches: not a confident answer
-    # A correct attitude explains the bright detections: at least half of the brightest must match. (A
-    # thin triad can lead to a self-consistent wrong roll that matches only the stars near it.)
-    n_bright = min(frame.n, _N_BRIGHT)
-    if 2 * int(np.count_nonzero(det < n_bright)) < n_bright:
-        return None
+    # Misfit test. Unmatched detections are false stars (or stars missing from the catalog), at random
+    # places: few of them have a catalog star just beyond the radius (between r and 3r). Many such near
+    # misses mean the attitude is slightly wrong (a thin triad can converge to a self-consistent wrong
+    # roll that matches only the stars around it).
+    near = int(np.count_nonzero((raw[:, 0] > chord) & (raw[:, 0] <= 3.0 * chord)))
+    if near >= 2:
+        expected = (frame.n - len(det)) * (db.p_random(3.0 * tol) - db.p_random(tol))
+        if _poisson_tail(expected, near) < _MISFIT_P:
+            return None
     rms = float(np.sqrt(np.mean(dist * dist)))  # chord ~ angle at these scales
     return Match(rot=rot, det=det2, nav=nav2, n_required=n_req, rms_rad=rms)
 

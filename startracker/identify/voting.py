@@ -44,7 +44,7 @@ def identify_voting(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | No
     n = frame.n
     if n < 3:
         return None, "fewer than 3 usable detections", 0
-    pool = min(n, opts.max_stars or 20)
+    pool = min(n, opts.max_stars or 20, len(frame.angle_rad))
     votes = cast_votes(db, frame, pool)
     ident = votes.argmax(axis=1)
     has = votes[np.arange(pool), ident] > 0

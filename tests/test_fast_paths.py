@@ -1,0 +1,188 @@
+"""The env's internal fast paths give exactly (bit for bit) what the public, validating functions give.
+
+Each ``_..._unchecked`` helper skips input checks and scipy's wrapper layers but repeats the same floating-point
+operations; these tests compare them with ``==`` on random inputs, including edge cases (zero scalar parts,
+negative signs, tiny and large angles, query times on the samples).
+"""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from startracker import rotations as rot
+from startracker.attitude import solve_wahba_batch
+from startracker.centroid import _candidate_pairs
+from startracker.optics import camera_preset
+from startracker.track import (
+    _prediction_covariance_fast,
+    _prediction_sigma_px_fast,
+    prediction_covariance,
+    prediction_sigma_px,
+)
+
+
+def _same(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    assert a.shape == b.shape and a.dtype == b.dtype
+    assert np.array_equal(a, b), np.max(np.abs(a - b))
+
+
+def _random_quats(rng, n):
+    q = rng.normal(size=(n, 4)) * rng.choice([1e-3, 1.0, 1e3])
+    q[rng.random(n) < 0.15, 0] = 0.0  # the canonical-sign rule beyond w
+    return q
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_quaternion_fast_paths_equal_public_functions(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(40):
+        n = int(rng.integers(1, 25))
+        q = _random_quats(rng, n)
+        q2 = rot.quat_normalize(rng.normal(size=(n, 4)))
+        _same(rot._quat_normalize_unchecked(q), rot.quat_normalize(q))
+        _same(rot._quat_multiply_unchecked(q, q2), rot.quat_multiply(q, q2))
+        _same(rot._quat_multiply_unchecked(q[0], q2), rot.quat_multiply(q[0], q2))
+        _same(rot._quat_to_matrix_unchecked(q), rot.quat_to_matrix(q))
+        _same(rot._quat_angle_between_unchecked(q, q2), rot.quat_angle_between(q, q2))
+        scale = 10 ** rng.uniform(-9, 0.6)  # both sides of scipy's small-angle branch (1e-3 rad)
+        rv = rng.normal(size=(n, 3)) * scale
+        _same(rot._quat_from_rotvec_unchecked(rv), rot.quat_from_rotvec(rv))
+        _same(rot._quat_to_rotvec_unchecked(q), rot.quat_to_rotvec(q))
+        small = rot.quat_normalize(q2 * [1.0, scale, scale, scale])
+        _same(rot._quat_to_rotvec_unchecked(small), rot.quat_to_rotvec(small))
+        w, a, dt = rng.normal(size=3) * scale, rng.normal(size=3) * scale, rng.uniform(-0.1, 0.1, n)
+        _same(rot._quat_integrate_unchecked(q2[0], w, dt, a), rot.quat_integrate(q2[0], w, dt, a))
+        _same(rot._quat_integrate_unchecked(q2[0], w, dt), rot.quat_integrate(q2[0], w, dt))
+        m = rot.quat_to_matrix(q2) @ rot.quat_to_matrix(rot.quat_normalize(rng.normal(size=4)))
+        _same(rot._quat_from_matrix_unchecked(m), rot.quat_from_matrix(m))
+        _same(rot._quat_from_matrix_unchecked(m[0]), rot.quat_from_matrix(m[0]))
+
+
+def test_matrix_fast_path_falls_back_for_matrices_scipy_repairs_or_rejects():
+    rng = np.random.default_rng(9)
+    m = rot.quat_to_matrix(rot.quat_random(rng, 5)) * (1 + 1e-6)  # not orthogonal: scipy orthogonalises by SVD
+    _same(rot._quat_from_matrix_unchecked(m), rot.quat_from_matrix(m))
+    with pytest.raises(ValueError):
+        rot._quat_from_matrix_unchecked(-np.eye(3))  # a reflection, rejected like the public function does
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_interpolation_fast_path_equals_slerp(seed):
+    rng = np.random.default_rng(100 + seed)
+    for _ in range(40):
+        s = int(rng.integers(2, 15))
+        t = np.cumsum(rng.uniform(1e-3, 2e-2, s)) + rng.uniform(0, 100)
+        w = rng.normal(size=3) * 10 ** rng.uniform(-6, 1)
+        q = rot.quat_integrate(rot.quat_random(rng), w, t - t[0]) * rng.choice([1.0, -1.0], size=(s, 1))
+        tq = rng.uniform(t[0], t[-1], int(rng.integers(1, 70)))
+        tq[0], tq[-1] = t[0], t[-1]
+        tq[len(tq) // 2] = t[s // 2]  # exactly on an interior sample
+        _same(rot._quat_interpolate_unchecked(t, q, tq), rot.quat_interpolate(t, q, tq))
+        _same(rot._quat_interpolate_fast(t, q, tq), rot.quat_interpolate(t, q, tq))
+        ts = float(rng.uniform(t[0], t[-1]))
+        _same(rot._quat_interpolate_unchecked(t, q, ts), rot.quat_interpolate(t, q, ts))
+
+
+def test_interpolation_fast_path_keeps_the_public_checks():
+    t = np.array([0.0, 1.0])
+    q = np.array([[1.0, 0, 0, 0], [0.0, 1, 0, 0]])
+    with pytest.raises(ValueError, match="t_query"):
+        rot._quat_interpolate_fast(t, q, 2.0)
+    with pytest.raises(ValueError, match="increasing"):
+        rot._quat_interpolate_fast(t[::-1], q, 0.5)
+    with pytest.raises(ValueError):
+        rot._quat_interpolate_fast(t, np.zeros((2, 4)), 0.5)
+
+
+def test_wahba_batch_unchanged_by_the_internal_split():
+    """solve_wahba_batch against an explicit SVD solution (its own definition, independent of the refactor)."""
+    rng = np.random.default_rng(3)
+    q_true = rot.quat_random(rng, 4)
+    v_ref = rng.normal(size=(4, 6, 3))
+    v_ref /= np.linalg.norm(v_ref, axis=-1, keepdims=True)
+    v_meas = np.einsum("bji,bkj->bki", rot.quat_to_matrix(q_true), v_ref)  # R^T v
+    q, cov, rms, ok = solve_wahba_batch(v_meas, v_ref, 1e-5)
+    assert ok.all() and np.all(rms < 1e-6)
+    assert np.all(np.degrees(rot.quat_angle_between(q, q_true)) * 3600 < 1e-6)
+
+
+def test_prediction_covariance_fast_paths_equal_public_functions():
+    rng = np.random.default_rng(4)
+    cam = camera_preset("paper000")
+    for _ in range(20):
+        a = rng.normal(size=(3, 3, 3)) * 1e-4
+        p, pw, pa = (x @ x.T for x in a)
+        dt = rng.uniform(-0.2, 0.2, 5)
+        _same(_prediction_covariance_fast(p, dt, pw, pa), prediction_covariance(p, dt, pw, pa))
+        assert _prediction_sigma_px_fast(cam, p, dt, pw, pa) == prediction_sigma_px(cam, p, dt, pw, pa)
+        # scalars take the checked path and still agree
+        assert _prediction_sigma_px_fast(cam, p, 0.1, 1e-8, 1e-6) == prediction_sigma_px(cam, p, 0.1, 1e-8, 1e-6)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_sweep_pairs_leave_the_same_set_as_the_kdtree(seed):
+    """The merge step keeps the pairs closer than the sum of their reaches (< r): same set either way."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 400))
+    xy = rng.uniform(0, 300, (n, 2))
+    xy[: n // 4, 0] = xy[0, 0]  # ties in x
+    reach = rng.uniform(0.5, 6.0, n)
+    r = 2.0 * float(reach.max()) + 1e-9
+
+    def kept(pairs):
+        d = xy[pairs[:, 0]] - xy[pairs[:, 1]]
+        ok = d[:, 0] ** 2 + d[:, 1] ** 2 < (reach[pairs[:, 0]] + reach[pairs[:, 1]]) ** 2
+        return {tuple(p) for p in np.sort(pairs[ok], axis=1).tolist()}
+
+    ref = cKDTree(xy).query_pairs(r, output_type="ndarray")
+    sweep = _candidate_pairs(xy, r)
+    assert np.all(sweep[:, 0] < sweep[:, 1])
+    assert kept(sweep) == kept(ref)
+
+
+def test_count_wrong_bounds_decide_like_the_eigensolver():
+    """Avionics._count_wrong decides most samples from trace bounds on λ_max; the count must equal the direct
+    rule err > max(5 sqrt(λ_max), 20″) for errors on both sides of the threshold."""
+    from envs.avionics import Avionics
+    from startracker.sensor import AttitudeSample
+
+    av = Avionics.__new__(Avionics)
+    av._n_wrong, av._n_samples_total = 0, 0
+    rng = np.random.default_rng(5)
+    times = np.linspace(0.0, 0.1, 11)
+    quats = rot.quat_integrate(rot.quat_random(rng), [0.2, -0.1, 0.3], times)
+    samples, expected = [], 0
+    for k in range(200):
+        a = rng.normal(size=(3, 3)) * 10 ** rng.uniform(-6, -3)
+        cov = a @ a.T + 1e-14 * np.eye(3)
+        sig = np.sqrt(np.max(np.linalg.eigvalsh(cov)))
+        t = rng.uniform(0.0, 0.1)
+        err = max(5 * sig, np.radians(20 / 3600)) * rng.uniform(0.5, 1.5)
+        axis = rng.normal(size=3)
+        q_true = rot.quat_interpolate(times, quats, t)
+        q_meas = rot.quat_multiply(q_true, rot.quat_from_rotvec(axis / np.linalg.norm(axis) * err))
+        samples.append(AttitudeSample(t, q_meas, cov, 5))
+        expected += int(rot.quat_angle_between(q_true, q_meas) > max(5 * sig, np.radians(20 / 3600)))
+    assert 0 < expected < 200
+    assert av._count_wrong(samples, np.zeros(len(samples)), times, quats) == expected
+
+
+def test_scene_projection_fast_paths_equal_camera_project_and_einsum():
+    from startracker.color import ColorCamera
+    from startracker.optics import CAMERA_PRESETS
+    from startracker.scene import _project_unchecked, _rotate_rows_transposed
+
+    rng = np.random.default_rng(6)
+    cams = [camera_preset(name) for name in CAMERA_PRESETS]
+    cams.append(ColorCamera.paper004(translation="table2").channel_camera("red"))  # overrides project
+    for cam in cams:
+        v = rng.normal(size=(400, 3))
+        v[:, 2] = np.abs(v[:, 2]) * rng.choice([5.0, -1.0, 1e-14], size=400)  # in front, behind, grazing
+        xy, _, front = cam.project(v, return_in_front=True)
+        xy_f, front_f = _project_unchecked(cam, v)
+        _same(xy_f, xy)
+        _same(front_f, front)
+    r = rot.quat_to_matrix(rot.quat_random(rng, 30))
+    vv = rng.normal(size=(45, 3))
+    _same(_rotate_rows_transposed(r, vv), np.einsum("tji,kj->tki", r, vv))

@@ -29,14 +29,15 @@ def _require_sb3():
 
 def make_training_env(seed: int = 0, **env_kwargs):
     """A factory for one training env (centroid fidelity, shorter episodes and moderate slews by default)."""
-    import gymnasium as gym
-
-    import envs  # noqa: F401
-
     kwargs = dict(fidelity="centroid", max_episode_s=40.0, slew_angle_deg_range=(10.0, 90.0))
     kwargs.update(env_kwargs)
 
     def _make():
+        # imported here: SubprocVecEnv builds envs in fresh processes, which must register the ids themselves
+        import gymnasium as gym
+
+        import envs  # noqa: F401
+
         env = gym.make("startracker/AgileSlew-v0", **kwargs)
         env.reset(seed=seed)
         return env

@@ -11,9 +11,9 @@ from policies.rl import PPOPolicy, make_training_env
 
 def test_ppo_checkpoint_runs_as_a_policy(tmp_path):
     from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import DummyVecEnv
+    from stable_baselines3.common.vec_env import SubprocVecEnv
 
-    vec = DummyVecEnv([make_training_env(0), make_training_env(1)])
+    vec = SubprocVecEnv([make_training_env(0), make_training_env(1)])  # fresh processes, as training uses
     model = PPO("MlpPolicy", vec, n_steps=16, batch_size=16, seed=0, device="cpu")
     model.learn(total_timesteps=32)
     path = tmp_path / "ppo.zip"

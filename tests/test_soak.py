@@ -12,7 +12,7 @@ spec.loader.exec_module(bench_soak)
 
 @pytest.mark.slow
 def test_short_soak_is_clean():
-    res = bench_soak.soak(3000, seed=1, faults_per_min=10.0, episode_s=15.0, progress=False)
+    res = bench_soak.soak(10_000, seed=1, faults_per_min=10.0, episode_s=15.0, progress=False)
     assert res["exceptions"] == 0, res["first_exception"]
     for key in ("nonfinite_obs", "nonfinite_reward", "obs_outside_space", "nonunit_quaternions", "wrong_attitudes"):
         assert res[key] == 0, (key, res)

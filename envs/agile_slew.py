@@ -10,13 +10,10 @@ from envs.avionics import Avionics, AvionicsConfig, TRACKER_MODES
 from envs.faults import Fault, FaultSchedule, random_fault_schedule
 from envs.spacecraft import Spacecraft
 from startracker.rotations import (
-    quat_angle_between,
-    quat_conjugate,
     quat_from_rotvec,
     quat_multiply,
     quat_normalize,
     quat_random,
-    quat_to_rotvec,
     _quat_angle_between_unchecked,
     _quat_multiply_unchecked,
     _quat_to_rotvec_unchecked,

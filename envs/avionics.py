@@ -26,13 +26,10 @@ from startracker.catalog import load_catalog
 from startracker.filter import AttitudeEKF
 from startracker.imu import Gyro, gyro_preset, GYRO_GRADES
 from startracker.rotations import (
-    quat_angle_between,
     quat_conjugate,
     quat_integrate,
     quat_interpolate,
-    quat_multiply,
     quat_rotate,
-    quat_to_rotvec,
     _quat_angle_between_unchecked,
     _quat_interpolate_unchecked,
     _quat_multiply_unchecked,

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from startracker.rotations import _norm_last, _quat_from_matrix_unchecked, as_float_array, quat_from_matrix
+from startracker.rotations import _norm_last, _quat_from_matrix_unchecked, as_float_array
 
 __all__ = ["WahbaSolution", "solve_wahba", "solve_wahba_batch", "solve_wahba_single", "RAD_TO_ARCSEC"]
 

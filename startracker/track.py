@@ -51,7 +51,6 @@ from startracker.rotations import (
     _norm_last,
     _quat_integrate_unchecked,
     _quat_multiply_unchecked,
-    _quat_normalize_unchecked,
     _quat_to_matrix_unchecked,
     as_float_array,
     quat_normalize,

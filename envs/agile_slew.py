@@ -377,6 +377,7 @@ class AgileSlewEnv(gym.Env):
             "lost_lock_events": stats["lost_lock_events"],
             "faults_active": list(stats["faults_active"]),
             "n_wrong_samples": stats["n_wrong_samples"],
+            "filter_restarts": stats["filter_restarts"],
             "n_wrong_samples_total": self.avionics.n_wrong_samples_total,
             "reacquisition_times_s": self.avionics.reacquisition_times_s,
             "attitude_sigma_arcsec": float(np.degrees(min(est.attitude_sigma_rad, np.pi)) * 3600.0),

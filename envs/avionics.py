@@ -167,8 +167,8 @@ class Avionics:
             exposures_per_frame=0,
             n_attitude_samples=0,
             lost_lock_events=0,
-            frame_latencies_ms=[],
             n_wrong_samples=0,
+            filter_restarts=0,
             faults_active=[],
         )
 
@@ -176,7 +176,6 @@ class Avionics:
         """New episode: fresh gyro errors, lost tracker, no estimate; then one single-exposure frame."""
         self.faults = faults if faults is not None else FaultSchedule()
         self._n_wrong = 0
-        self._n_samples_total = 0
         self._rejected_frames = 0
         self._filter_resets = 0
         self._t_lock_lost = None
@@ -191,8 +190,6 @@ class Avionics:
         self._lost_events = 0
         self.last_stats = self._empty_stats()
         t = spacecraft.time_s
-        self._t_hist = np.array([t])
-        self._q_hist = spacecraft.q_body_to_world[None, :].copy()
         # The first frame is exposed while the spacecraft sits at its initial attitude (at rest or drifting slowly):
         # the truth over it comes from integrating the initial rate, without stepping the episode's clock.
         w = spacecraft.omega_body
@@ -257,7 +254,7 @@ class Avionics:
             stats["n_stars"] = self.last_stats["n_stars"]
             stats["exposures_per_frame"] = self.last_stats["exposures_per_frame"]
         stats["matching_latency_ms"] = float(np.mean(lat)) if lat else 0.0
-        stats["frame_latencies_ms"] = lat
+        stats["filter_restarts"] = self._filter_resets
         stats["n_attitude_samples"] = len(samples)
         stats["update_rate_hz"] = len(samples) / duration_s
         stats["lost_lock_events"] = self._lost_events
@@ -338,7 +335,6 @@ class Avionics:
             sure_wrong[undecided] = err[undecided] > np.maximum(5 * sig, floor)
         wrong = int(np.sum(sure_wrong))
         self._n_wrong += wrong
-        self._n_samples_total += int(inside.sum())
         return wrong
 
     @property

@@ -255,7 +255,7 @@ class AgileSlewEnv(gym.Env):
         )
 
     @property
-    def q_target_body_to_world(self) -> np.ndarray:
+    def q_target_body_to_icrs(self) -> np.ndarray:
         return self._q_target.copy()
 
     # ------------------------------------------------------------------ gymnasium API
@@ -308,7 +308,7 @@ class AgileSlewEnv(gym.Env):
         self.spacecraft.apply_wheel_torque(a * self.spacecraft.wheel_max_torque_Nm)
         self.avionics.advance(self.spacecraft, self.control_period_s, self.np_random)
 
-        q_true = self.spacecraft.q_body_to_world
+        q_true = self.spacecraft.q_body_to_icrs
         err = float(_quat_angle_between_unchecked(q_true, self._q_target))  # quat_angle_between on own float64 state
         rate = float(np.linalg.norm(self.spacecraft.omega_body))
         dt = self.control_period_s
@@ -330,7 +330,7 @@ class AgileSlewEnv(gym.Env):
     # ------------------------------------------------------------------ internals
     def _observation(self) -> np.ndarray:
         est = self.avionics.estimate()
-        q_err = _quat_multiply_unchecked(est.q_body_to_world * _CONJ, self._q_target)
+        q_err = _quat_multiply_unchecked(est.q_body_to_icrs * _CONJ, self._q_target)
         e = _quat_to_rotvec_unchecked(q_err)
         w_max = self.avionics.gyro_max_rate_rad_s
         mode = np.zeros(3)
@@ -351,22 +351,22 @@ class AgileSlewEnv(gym.Env):
         """Normalised estimation error squared of the EKF attitude (3 dof; mean 3 when consistent), None before a fix."""
         if est.attitude_cov_rad2 is None:
             return None
-        d = _quat_to_rotvec_unchecked(_quat_multiply_unchecked(est.q_body_to_world * _CONJ, q_true))
+        d = _quat_to_rotvec_unchecked(_quat_multiply_unchecked(est.q_body_to_icrs * _CONJ, q_true))
         return float(d @ np.linalg.solve(est.attitude_cov_rad2, d))
 
     def _info(self, reward_terms) -> dict:
-        q_true = self.spacecraft.q_body_to_world
+        q_true = self.spacecraft.q_body_to_icrs
         est = self.avionics.estimate()
         stats = self.avionics.last_stats
         info = {
             "time_s": float(self.spacecraft.time_s),
             "q_true": q_true,
-            "q_est": est.q_body_to_world.copy(),
+            "q_est": est.q_body_to_icrs.copy(),
             "omega_est_body": est.omega_body.copy(),
             "estimate_valid": bool(est.valid),
             "q_target": self._q_target.copy(),
             "omega_true_body": self.spacecraft.omega_body,
-            "attitude_error_arcsec": float(np.degrees(_quat_angle_between_unchecked(q_true, est.q_body_to_world)) * 3600.0),
+            "attitude_error_arcsec": float(np.degrees(_quat_angle_between_unchecked(q_true, est.q_body_to_icrs)) * 3600.0),
             "pointing_error_deg": float(np.degrees(_quat_angle_between_unchecked(q_true, self._q_target))),
             "update_rate_hz": stats["update_rate_hz"],
             "matching_latency_ms": stats["matching_latency_ms"],

@@ -111,7 +111,7 @@ class AvionicsConfig:
 class Estimate:
     """What the controller may know: the filter's output."""
 
-    q_body_to_world: np.ndarray
+    q_body_to_icrs: np.ndarray
     omega_body: np.ndarray
     attitude_sigma_rad: float
     valid: bool
@@ -194,7 +194,7 @@ class Avionics:
         # the truth over it comes from integrating the initial rate, without stepping the episode's clock.
         w = spacecraft.omega_body
         t_pre = np.linspace(t - self.config.frame_period_s, t, 11)
-        q_pre = quat_integrate(spacecraft.q_body_to_world, w, t_pre - t)
+        q_pre = quat_integrate(spacecraft.q_body_to_icrs, w, t_pre - t)
         samples = self._run_frame(t_pre[0], (t_pre, q_pre), rng)
         if samples:
             last = samples[-1]
@@ -222,14 +222,14 @@ class Avionics:
         times = np.empty(n_sub + 1)
         quats = np.empty((n_sub + 1, 4))
         times[0] = t0
-        quats[0] = spacecraft.q_body_to_world
+        quats[0] = spacecraft.q_body_to_icrs
         if hasattr(spacecraft, "_step_recording"):
             spacecraft._step_recording(self._gyro_dt, n_sub, times[1:], quats[1:])
         else:
             for k in range(n_sub):
                 spacecraft.step(self._gyro_dt)
                 times[k + 1] = spacecraft.time_s
-                quats[k + 1] = spacecraft.q_body_to_world
+                quats[k + 1] = spacecraft.q_body_to_icrs
         # average true rate over each gyro interval, from the quaternion increment (body frame)
         dq = _quat_multiply_unchecked(quat_conjugate(quats[:-1]), quats[1:])
         omega_avg = _quat_to_rotvec_unchecked(dq) / np.diff(times)[:, None]
@@ -369,7 +369,7 @@ class Avionics:
             return None
         if float(np.max(self.ekf.attitude_sigma_rad)) > tracker.prior_sigma_rad / 3.0:
             return None
-        return quat_integrate(self.ekf.q_body_to_world, self.ekf.omega_body, t_frame - self.ekf.t_s)
+        return quat_integrate(self.ekf.q_body_to_icrs, self.ekf.omega_body, t_frame - self.ekf.t_s)
 
     def _run_frame(self, t_frame: float, truth, rng, omega_hint=None) -> list:
         """Image, detect and process one frame starting at ``t_frame`` on every head; returns the attitude samples."""
@@ -438,7 +438,7 @@ class Avionics:
         if self.ekf is None:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
         sig = float(np.max(self.ekf.attitude_sigma_rad))
-        return Estimate(self.ekf.q_body_to_world.copy(), np.asarray(self.ekf.omega_body, float).copy(), sig, True,
+        return Estimate(self.ekf.q_body_to_icrs.copy(), np.asarray(self.ekf.omega_body, float).copy(), sig, True,
                         np.array(self.ekf.P[:3, :3], dtype=float))
 
     def render_last_frame(self) -> np.ndarray | None:

@@ -333,7 +333,7 @@ class Spacecraft:
         return float(self.data.time)
 
     @property
-    def q_body_to_world(self) -> np.ndarray:
+    def q_body_to_icrs(self) -> np.ndarray:
         """Attitude quaternion (w, x, y, z), body -> world (ICRS), shape (4,)."""
         return self.data.qpos[self._sl_quat].copy()
 
@@ -369,7 +369,7 @@ class Spacecraft:
 
     @property
     def total_angular_momentum_world(self) -> np.ndarray:
-        """Total angular momentum about the centre of mass in the world frame, shape (3,), N m s."""
+        """Total angular momentum about the centre of mass in the inertial (ICRS) frame, shape (3,), N m s."""
         # not data.xmat: after mj_step it still holds the kinematics of the previous substep
         w, x, y, z = self.data.qpos[self._sl_quat]
         r = np.array(
@@ -392,12 +392,12 @@ class Spacecraft:
         return self._torque_cmd.copy()
 
     # ------------------------------------------------------------------ commands
-    def set_state(self, q_body_to_world, omega_body, wheel_speeds_rad_s=None, time_s: float | None = None) -> None:
+    def set_state(self, q_body_to_icrs, omega_body, wheel_speeds_rad_s=None, time_s: float | None = None) -> None:
         """Set the physical state (position stays at the origin, wheel angles are kept).
 
         Parameters
         ----------
-        q_body_to_world : array_like, shape (4,)
+        q_body_to_icrs : array_like, shape (4,)
             Attitude (w, x, y, z); normalised here.
         omega_body : array_like, shape (3,)
             Bus angular velocity, body frame, rad/s.
@@ -406,10 +406,10 @@ class Spacecraft:
         time_s : float, optional
             Simulation time, s. Default: unchanged.
         """
-        q = as_float_array(q_body_to_world, "q_body_to_world", last_dim=4, ndim=1)
+        q = as_float_array(q_body_to_icrs, "q_body_to_icrs", last_dim=4, ndim=1)
         nq = np.linalg.norm(q)
         if nq < 1e-12:
-            raise ValueError("q_body_to_world must be a non-zero quaternion")
+            raise ValueError("q_body_to_icrs must be a non-zero quaternion")
         w = as_float_array(omega_body, "omega_body", last_dim=3, ndim=1)
         ws = None
         if wheel_speeds_rad_s is not None:
@@ -473,7 +473,7 @@ class Spacecraft:
         return tau / over if over > 1.0 else tau
 
     def set_external_torque_world(self, torque_world_Nm) -> None:
-        """Apply an external (disturbance) torque on the bus, world frame, N m, held until changed.
+        """Apply an external (disturbance) torque on the bus, inertial (ICRS) frame, N m, held until changed.
 
         Parameters
         ----------

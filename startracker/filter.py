@@ -4,7 +4,7 @@ The filter is built on :class:`filterpy.kalman.ExtendedKalmanFilter`. Its 6-elem
 
     x = [δθ (3), δb (3)],   q_true = q̂ ⊗ exp(δθ)  (body-frame attitude error, rad),   b_true = b̂ + δb (rad/s)
 
-and the full attitude ``q̂`` (``q_body_to_world``, w x y z) and bias ``b̂`` live outside it (Markley 2003;
+and the full attitude ``q̂`` (``q_body_to_icrs``, w x y z) and bias ``b̂`` live outside it (Markley 2003;
 Crassidis & Markley, *Fundamentals of Spacecraft Attitude Determination and Control*, §6.2). After every
 measurement update the error is folded into ``q̂`` and ``b̂`` and ``x`` is reset to zero.
 
@@ -223,7 +223,7 @@ class AttitudeEKF:
 
     Parameters
     ----------
-    q_body_to_world : array_like, shape (4,)
+    q_body_to_icrs : array_like, shape (4,)
         Initial attitude estimate (w, x, y, z), body -> world (ICRS).
     arw_rad_sqrt_s : float
         Gyro angle random walk σ_v, rad/√s (> 0).
@@ -244,7 +244,7 @@ class AttitudeEKF:
 
     Attributes
     ----------
-    q_body_to_world : ndarray, shape (4,)
+    q_body_to_icrs : ndarray, shape (4,)
         Attitude estimate (w, x, y, z), unit norm, ``w >= 0`` not enforced.
     bias_rad_s : ndarray, shape (3,)
         Gyro bias estimate, rad/s.
@@ -261,7 +261,7 @@ class AttitudeEKF:
 
     def __init__(
         self,
-        q_body_to_world,
+        q_body_to_icrs,
         *,
         arw_rad_sqrt_s: float,
         rrw_rad_s_sqrt_s: float = 0.0,
@@ -271,10 +271,10 @@ class AttitudeEKF:
         t_s: float = 0.0,
         gate_chi2: float | None = None,
     ):
-        q = as_float_array(q_body_to_world, "q_body_to_world", last_dim=4, ndim=1)
+        q = as_float_array(q_body_to_icrs, "q_body_to_icrs", last_dim=4, ndim=1)
         nq = float(np.linalg.norm(q))
         if nq < 1e-12:
-            raise ValueError("q_body_to_world must be a non-zero quaternion")
+            raise ValueError("q_body_to_icrs must be a non-zero quaternion")
         self.sigma_v = self._positive(arw_rad_sqrt_s, "arw_rad_sqrt_s")
         self.sigma_u = float(as_float_array(rrw_rad_s_sqrt_s, "rrw_rad_s_sqrt_s"))
         if self.sigma_u < 0.0:
@@ -290,7 +290,7 @@ class AttitudeEKF:
             gate_chi2 = self._positive(gate_chi2, "gate_chi2")
         self.gate_chi2 = gate_chi2
 
-        self.q_body_to_world = q / nq
+        self.q_body_to_icrs = q / nq
         self.bias_rad_s = b.copy()
         self.t_s = float(as_float_array(t_s, "t_s"))
         self.omega_body = np.zeros(3)
@@ -311,7 +311,7 @@ class AttitudeEKF:
         return v
 
     @classmethod
-    def from_gyro_spec(cls, spec, q_body_to_world, **kwargs) -> "AttitudeEKF":
+    def from_gyro_spec(cls, spec, q_body_to_icrs, **kwargs) -> "AttitudeEKF":
         """Filter tuned to a :class:`startracker.imu.GyroSpec` (ARW, bias random walk, initial bias 1σ).
 
         Keyword arguments override the derived values (``sigma_bias_rad_s`` defaults to the root sum
@@ -323,7 +323,7 @@ class AttitudeEKF:
             sigma_bias_rad_s=max(math.hypot(spec.bias_sigma_rad_s, spec.gm_sigma_rad_s), 1e-9),
         )
         kw.update(kwargs)
-        return cls(q_body_to_world, **kw)
+        return cls(q_body_to_icrs, **kw)
 
     # ------------------------------------------------------------------ views
     @property
@@ -391,7 +391,7 @@ class AttitudeEKF:
 
     def _advance_quaternion(self, w_hat, dt):
         dq = _qexp(w_hat[0] * dt, w_hat[1] * dt, w_hat[2] * dt)
-        return _normalized(_qmul(self.q_body_to_world.tolist(), dq))
+        return _normalized(_qmul(self.q_body_to_icrs.tolist(), dq))
 
     # ------------------------------------------------------------------ filterpy path
     def propagate(self, omega_gyro, dt: float) -> None:
@@ -414,13 +414,13 @@ class AttitudeEKF:
         if dt == 0.0:
             return
         phi, qd = self._transition(w_hat, dt)
-        self.q_body_to_world = np.array(self._advance_quaternion(w_hat, dt))
+        self.q_body_to_icrs = np.array(self._advance_quaternion(w_hat, dt))
         self.ekf.F = phi
         self.ekf.Q = qd
         self.ekf.predict()
         self.t_s += dt
 
-    def update(self, q_meas_body_to_world, covariance_rad2, t: float | None = None, omega_gyro=None) -> bool:
+    def update(self, q_meas_body_to_icrs, covariance_rad2, t: float | None = None, omega_gyro=None) -> bool:
         """Fuse one star-tracker attitude sample taken at time ``t``.
 
         If ``t`` is later than the estimate, the filter first propagates to ``t`` with ``omega_gyro``
@@ -428,7 +428,7 @@ class AttitudeEKF:
 
         Parameters
         ----------
-        q_meas_body_to_world : array_like, shape (4,)
+        q_meas_body_to_icrs : array_like, shape (4,)
             Measured attitude (w, x, y, z), any sign.
         covariance_rad2 : array_like, shape (3, 3)
             Body-frame covariance of the sample's attitude error, rad², symmetric positive definite.
@@ -442,7 +442,7 @@ class AttitudeEKF:
         bool
             False when the sample was rejected by the innovation gate.
         """
-        qm = self._unit(as_float_array(q_meas_body_to_world, "q_meas_body_to_world", last_dim=4, ndim=1))
+        qm = self._unit(as_float_array(q_meas_body_to_icrs, "q_meas_body_to_icrs", last_dim=4, ndim=1))
         r = self._check_cov(covariance_rad2, "covariance_rad2")
         if t is not None:
             t = float(as_float_array(t, "t"))
@@ -451,7 +451,7 @@ class AttitudeEKF:
             if t > self.t_s:
                 self.propagate(self._omega_gyro_last if omega_gyro is None else omega_gyro, t - self.t_s)
                 self.t_s = t
-        z = np.array(_qlog_residual(self.q_body_to_world.tolist(), qm.tolist()))
+        z = np.array(_qlog_residual(self.q_body_to_icrs.tolist(), qm.tolist()))
         if self.gate_chi2 is not None:
             s = self.ekf.P[:3, :3] + r
             if float(z @ _inv3_sym(s) @ z) > self.gate_chi2:
@@ -467,7 +467,7 @@ class AttitudeEKF:
     def _reset(self, dx):
         dx = dx.tolist()
         dq = _qexp(dx[0], dx[1], dx[2])
-        self.q_body_to_world = np.array(_normalized(_qmul(self.q_body_to_world.tolist(), dq)))
+        self.q_body_to_icrs = np.array(_normalized(_qmul(self.q_body_to_icrs.tolist(), dq)))
         self.bias_rad_s = self.bias_rad_s + np.array(dx[3:])
         self.omega_body = self._omega_gyro_last - self.bias_rad_s
 
@@ -475,7 +475,7 @@ class AttitudeEKF:
     def _unit(q):
         n = float(np.linalg.norm(q))
         if n < 1e-12:
-            raise ValueError("q_meas_body_to_world must be a non-zero quaternion")
+            raise ValueError("q_meas_body_to_icrs must be a non-zero quaternion")
         return q / n
 
     @staticmethod
@@ -495,7 +495,7 @@ class AttitudeEKF:
 
     # ------------------------------------------------------------------ lean path
     def process(
-        self, omega_gyro, t_gyro_s, q_meas_body_to_world, t_meas_s, covariance_rad2, method: str = "auto"
+        self, omega_gyro, t_gyro_s, q_meas_body_to_icrs, t_meas_s, covariance_rad2, method: str = "auto"
     ) -> np.ndarray:
         """Fuse a frame's gyro samples and attitude samples in time order (lean paths).
 
@@ -518,7 +518,7 @@ class AttitudeEKF:
             Measured rates, rad/s.
         t_gyro_s : array_like, shape (G,) or scalar
             End time of each gyro interval, s, strictly increasing, after the estimate's time.
-        q_meas_body_to_world : array_like, shape (M, 4)
+        q_meas_body_to_icrs : array_like, shape (M, 4)
             Attitude samples (w, x, y, z); M may be 0.
         t_meas_s : array_like, shape (M,)
             Exposure times, s, non-decreasing, in ``[t_s, t_gyro_s[-1]]``.
@@ -541,11 +541,11 @@ class AttitudeEKF:
             raise ValueError(f"t_gyro_s must have one time per omega_gyro row ({len(wg)}), got {len(tg)}")
         if tg[0] <= self.t_s - 1e-9 or np.any(np.diff(tg) <= 0.0):
             raise ValueError(f"t_gyro_s must be strictly increasing and after the estimate's time {self.t_s}")
-        qm = as_float_array(q_meas_body_to_world, "q_meas_body_to_world").reshape(-1, 4)
+        qm = as_float_array(q_meas_body_to_icrs, "q_meas_body_to_icrs").reshape(-1, 4)
         tm = as_float_array(t_meas_s, "t_meas_s").reshape(-1)
         m = len(qm)
         if len(tm) != m:
-            raise ValueError(f"t_meas_s must have one time per q_meas_body_to_world row ({m}), got {len(tm)}")
+            raise ValueError(f"t_meas_s must have one time per q_meas_body_to_icrs row ({m}), got {len(tm)}")
         rs = self._check_cov(covariance_rad2, "covariance_rad2", batch=True) if m else np.zeros((0, 3, 3))
         if len(rs) != m:
             raise ValueError(f"covariance_rad2 must have shape ({m}, 3, 3), got {rs.shape}")
@@ -553,7 +553,7 @@ class AttitudeEKF:
             raise ValueError(f"t_meas_s must be non-decreasing and lie in [{self.t_s}, {tg[-1]}]")
         norms = np.linalg.norm(qm, axis=1)
         if np.any(norms < 1e-12):
-            raise ValueError("q_meas_body_to_world contains a zero quaternion")
+            raise ValueError("q_meas_body_to_icrs contains a zero quaternion")
         qm = qm / norms[:, None]
         return self._process_unit(wg, tg, qm, tm, rs, method)
 
@@ -567,7 +567,7 @@ class AttitudeEKF:
         accepted = np.ones(m, dtype=bool)
 
         P = self.ekf.P
-        q = self.q_body_to_world.tolist()
+        q = self.q_body_to_icrs.tolist()
         b = self.bias_rad_s.tolist()
         t = self.t_s
         gate = self.gate_chi2
@@ -620,7 +620,7 @@ class AttitudeEKF:
             b = [b[0] + dx[3], b[1] + dx[4], b[2] + dx[5]]
             self.n_updates += 1
 
-        self.q_body_to_world = np.array(q)
+        self.q_body_to_icrs = np.array(q)
         self.bias_rad_s = np.array(b)
         self.t_s = t
         self._omega_gyro_last = np.array(w_gyro)
@@ -643,7 +643,7 @@ class AttitudeEKF:
         q_start = np.empty((n_g, 4))
         p_start = np.empty((n_g, 6, 6))
         phi_start = np.empty((n_g, 6, 6))
-        q = self.q_body_to_world.tolist()
+        q = self.q_body_to_icrs.tolist()
         P = self.ekf.P
         phi_acc = _I6
         phi = qd = None
@@ -701,7 +701,7 @@ class AttitudeEKF:
             self.bias_rad_s = b0 + np.array(dx[3:])
             self.n_updates += k
             self.ekf.y, self.ekf.R = z[-1].reshape(-1, 1), rs_k[-1]
-        self.q_body_to_world = np.array(q)
+        self.q_body_to_icrs = np.array(q)
         self.t_s = float(tg[-1])
         self._omega_gyro_last = wg[-1].copy()
         self.omega_body = self._omega_gyro_last - self.bias_rad_s

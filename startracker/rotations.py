@@ -209,7 +209,7 @@ def quat_random(rng: np.random.Generator, size: int | None = None) -> np.ndarray
     return q[0] if size is None else q
 
 
-def quat_integrate(q_body_to_world, omega_body, dt, alpha_body=None) -> np.ndarray:
+def quat_integrate(q_body_to_icrs, omega_body, dt, alpha_body=None) -> np.ndarray:
     """Propagate attitude over ``dt`` seconds with body rate ``omega_body`` (rad/s).
 
     Second order when ``alpha_body`` (rad/s², body frame) is given: the rotation vector over the
@@ -218,7 +218,7 @@ def quat_integrate(q_body_to_world, omega_body, dt, alpha_body=None) -> np.ndarr
 
     Parameters
     ----------
-    q_body_to_world : array_like, shape (4,) or (..., 4)
+    q_body_to_icrs : array_like, shape (4,) or (..., 4)
     omega_body : array_like, shape (3,) or (..., 3)
         Body angular rate in rad/s.
     dt : float or array_like, broadcastable to the leading shape
@@ -230,7 +230,7 @@ def quat_integrate(q_body_to_world, omega_body, dt, alpha_body=None) -> np.ndarr
     -------
     ndarray, shape (..., 4)
     """
-    q = np.asarray(q_body_to_world, dtype=np.float64)
+    q = np.asarray(q_body_to_icrs, dtype=np.float64)
     w = np.asarray(omega_body, dtype=np.float64)
     dt = np.asarray(dt, dtype=np.float64)[..., None]
     rv = w * dt

@@ -356,10 +356,10 @@ class Scene:
         exposure i is the polyline ``xy_path[i, :, m]`` (smear).
     visible : ndarray of bool, shape (N, M)
         The star's position at the exposure mid-time lies on the detector.
-    q_body_to_world : ndarray, shape (N, 4)
+    q_body_to_icrs : ndarray, shape (N, 4)
         Attitude at the exposure mid-times.
-    q_cam_to_world : ndarray, shape (N, 4)
-        Camera attitude at the exposure mid-times (``q_body_to_world ⊗ q_cam_to_body``).
+    q_cam_to_icrs : ndarray, shape (N, 4)
+        Camera attitude at the exposure mid-times (``q_body_to_icrs ⊗ q_cam_to_body``).
     bright_bodies : tuple of BrightBodyView
     """
 
@@ -374,8 +374,8 @@ class Scene:
     bv: np.ndarray
     xy_path: np.ndarray
     visible: np.ndarray
-    q_body_to_world: np.ndarray
-    q_cam_to_world: np.ndarray
+    q_body_to_icrs: np.ndarray
+    q_cam_to_icrs: np.ndarray
     bright_bodies: tuple = field(default=())
 
     @property
@@ -437,7 +437,7 @@ def _evaluate_attitude(attitude, t: np.ndarray) -> np.ndarray:
         t_s, q_s = attitude
         q = _quat_interpolate_fast(t_s, q_s, t)  # quat_interpolate's checks and result, without scipy's overhead
     else:
-        raise TypeError("attitude must be a callable t -> q_body_to_world (len(t), 4) or a tuple (t_samples, q_samples)")
+        raise TypeError("attitude must be a callable t -> q_body_to_icrs (len(t), 4) or a tuple (t_samples, q_samples)")
     if not np.all(np.isfinite(q)):
         raise ValueError("attitude contains NaN or inf")
     n = np.linalg.norm(q, axis=1, keepdims=True)
@@ -515,7 +515,7 @@ def compute_scene(
     catalog : StarCatalog
         Stars to image (e.g. ``load_catalog(6.0)``).
     attitude : callable or tuple
-        ``attitude(t)`` with ``t`` an array of s returning ``q_body_to_world`` (len(t), 4) (w, x, y, z),
+        ``attitude(t)`` with ``t`` an array of s returning ``q_body_to_icrs`` (len(t), 4) (w, x, y, z),
         or a tuple ``(t_samples (S,), q_samples (S, 4))`` interpolated with
         :func:`startracker.rotations.quat_interpolate` (must cover the exposures).
     plan : ExposurePlan
@@ -618,8 +618,8 @@ def compute_scene(
         bv=catalog.bv[idx],
         xy_path=xy_path,
         visible=visible,
-        q_body_to_world=q_mid,
-        q_cam_to_world=_quat_from_matrix_unchecked(r_cw_mid),
+        q_body_to_icrs=q_mid,
+        q_cam_to_icrs=_quat_from_matrix_unchecked(r_cw_mid),
         bright_bodies=tuple(views),
     )
 
@@ -694,7 +694,7 @@ def scene_from_tracks(
         bv=b,
         xy_path=xy_path,
         visible=visible,
-        q_body_to_world=q_id,
-        q_cam_to_world=q_id.copy(),
+        q_body_to_icrs=q_id,
+        q_cam_to_icrs=q_id.copy(),
         bright_bodies=(),
     )

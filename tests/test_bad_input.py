@@ -59,7 +59,7 @@ CASES = [
      ValueError, "xy"),
     ("gyro_preset", lambda: gyro_preset("toy"), ValueError, "grade"),
     ("GyroSpec", lambda: GyroSpec(rate_hz=-1.0), ValueError, "rate_hz"),
-    ("AttitudeEKF", lambda: AttitudeEKF([0, 0, 0, 0], arw_rad_sqrt_s=1e-5), ValueError, "q_body_to_world"),
+    ("AttitudeEKF", lambda: AttitudeEKF([0, 0, 0, 0], arw_rad_sqrt_s=1e-5), ValueError, "q_body_to_icrs"),
     ("AttitudeEKF.update", lambda: AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=1e-5).update([1, 0, 0, 0], -np.eye(3)),
      ValueError, "covariance_rad2"),
 ]

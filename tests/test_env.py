@@ -150,13 +150,13 @@ def test_unknown_render_mode_raises():
 def test_bad_actions_are_refused_without_corrupting_state():
     env = gym.make("startracker/AgileSlew-v0").unwrapped
     env.reset(seed=5)
-    q_before = env.spacecraft.q_body_to_world.copy()
+    q_before = env.spacecraft.q_body_to_icrs.copy()
     t_before = env.spacecraft.time_s
     with pytest.raises(ValueError, match="NaN"):
         env.step(np.array([np.nan, 0, 0, 0], np.float32))
     with pytest.raises(ValueError, match="shape"):
         env.step(np.zeros(3, np.float32))
-    assert env.spacecraft.time_s == t_before and np.array_equal(env.spacecraft.q_body_to_world, q_before)
+    assert env.spacecraft.time_s == t_before and np.array_equal(env.spacecraft.q_body_to_icrs, q_before)
     obs, *_ = env.step(np.array([5.0, -5.0, 0.0, 0.0], np.float32))  # clipped like Gymnasium does
     assert np.all(np.isfinite(obs))
 

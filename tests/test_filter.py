@@ -68,7 +68,7 @@ def test_converges_from_5_deg_initial_error(path):
     truth = Truth(rng, spec)
     q0 = quat_multiply(truth.q, quat_from_rotvec(5 * DEG * np.array([0.6, -0.48, 0.64])))
     f = AttitudeEKF.from_gyro_spec(spec, q0, sigma_attitude_rad=5 * DEG)
-    assert np.degrees(np.linalg.norm(attitude_error(f.q_body_to_world, truth.q))) > 4.9
+    assert np.degrees(np.linalg.norm(attitude_error(f.q_body_to_icrs, truth.q))) > 4.9
     cov = star_tracker_cov()
     errs = []
     for _ in range(30):
@@ -79,7 +79,7 @@ def test_converges_from_5_deg_initial_error(path):
             f.propagate(y, t_end - f.t_s)
         else:
             f.process(y, t_end, qm, tm, np.broadcast_to(cov, (3, 3, 3)), method=path)
-        errs.append(attitude_error(f.q_body_to_world, truth.q))
+        errs.append(attitude_error(f.q_body_to_icrs, truth.q))
     errs = np.array(errs)
     # after one frame the 5° error is gone (the batch linearises once: second-order residual, gone
     # after the next frame); after 3 s the error is at the tracker-noise level
@@ -122,7 +122,7 @@ def test_nees_consistent_over_monte_carlo(method):
         for k in range(frames):
             y = gyro.measure(w[k], rng)
             f.process(y, t_frame[k] + frame_s, q_meas[k], t_frame[k] + dt_s[k], covs, method=method)
-            q_est[k], err_b[k], p_all[k] = f.q_body_to_world, gyro.bias_rad_s - f.bias_rad_s, f.P
+            q_est[k], err_b[k], p_all[k] = f.q_body_to_icrs, gyro.bias_rad_s - f.bias_rad_s, f.P
         e = np.concatenate([attitude_error(q_est, q_true[1:]), err_b], axis=1)
         nees[r] = np.einsum("ki,ki->k", e, np.linalg.solve(p_all, e[..., None])[..., 0])
     mean_nees = nees.mean(axis=0)
@@ -229,7 +229,7 @@ def test_lean_process_equals_filterpy_sequence(gate):
         np.testing.assert_array_equal(accepted, acc_a)
         t = t_g[-1]
         q_true = q_at(t)
-        np.testing.assert_allclose(a.q_body_to_world, b.q_body_to_world, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(a.q_body_to_icrs, b.q_body_to_icrs, rtol=0, atol=1e-13)
         np.testing.assert_allclose(a.bias_rad_s, b.bias_rad_s, rtol=0, atol=1e-13)
         np.testing.assert_allclose(a.P, b.P, rtol=1e-9, atol=1e-14 * np.abs(a.P).max())
         np.testing.assert_allclose(a.t_s, b.t_s, atol=1e-12)
@@ -275,7 +275,7 @@ def test_batch_agrees_with_sequential_while_tracking():
         np.testing.assert_array_equal(acc_s, acc_b)
         t = t_g[-1]
         q_true = q_at(t)
-        d_att = np.linalg.norm(attitude_error(seq.q_body_to_world, bat.q_body_to_world))
+        d_att = np.linalg.norm(attitude_error(seq.q_body_to_icrs, bat.q_body_to_icrs))
         assert d_att < 1e-4 * seq.attitude_sigma_rad.min()
         assert np.all(np.abs(seq.bias_rad_s - bat.bias_rad_s) < 1e-4 * seq.bias_sigma_rad_s)
         # covariances agree in the whitened sense: eig(P_seq⁻¹ P_bat) = 1
@@ -283,7 +283,7 @@ def test_batch_agrees_with_sequential_while_tracking():
         worst = max(worst, np.abs(ratio - 1.0).max())
         assert bat.t_s == seq.t_s
         # and both track the truth
-        assert np.linalg.norm(attitude_error(bat.q_body_to_world, q_true)) < 5 * np.linalg.norm(bat.attitude_sigma_rad)
+        assert np.linalg.norm(attitude_error(bat.q_body_to_icrs, q_true)) < 5 * np.linalg.norm(bat.attitude_sigma_rad)
     assert seq.n_updates == bat.n_updates and seq.n_rejected == bat.n_rejected == 1
     assert worst < 1e-4, worst
 
@@ -295,7 +295,7 @@ def test_gate_rejects_outlier():
     f = AttitudeEKF(q_true, arw_rad_sqrt_s=1e-5, sigma_attitude_rad=20 * ARCSEC, gate_chi2=16.27)
     bad = quat_multiply(q_true, quat_from_rotvec([0.0, 1 * DEG, 0.0]))
     assert f.update(bad, cov) is False
-    assert np.linalg.norm(attitude_error(f.q_body_to_world, q_true)) < 1e-12
+    assert np.linalg.norm(attitude_error(f.q_body_to_icrs, q_true)) < 1e-12
     good = quat_multiply(q_true, quat_from_rotvec([5 * ARCSEC, 0, 0]))
     assert f.update(good, cov) is True
     assert f.n_rejected == 1 and f.n_updates == 1
@@ -308,7 +308,7 @@ def test_measurement_sign_does_not_matter():
     b = AttitudeEKF(q, arw_rad_sqrt_s=1e-5)
     a.update(meas, star_tracker_cov())
     b.update(-meas, star_tracker_cov())
-    np.testing.assert_allclose(a.q_body_to_world, b.q_body_to_world, atol=1e-15)
+    np.testing.assert_allclose(a.q_body_to_icrs, b.q_body_to_icrs, atol=1e-15)
 
 
 def test_bad_input():
@@ -316,7 +316,7 @@ def test_bad_input():
     cov = star_tracker_cov()
     with pytest.raises(ValueError, match="arw_rad_sqrt_s"):
         AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=0.0)
-    with pytest.raises(ValueError, match="q_body_to_world"):
+    with pytest.raises(ValueError, match="q_body_to_icrs"):
         AttitudeEKF([0, 0, 0, 0], arw_rad_sqrt_s=1e-5)
     with pytest.raises(ValueError, match="sigma_attitude_rad"):
         AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=1e-5, sigma_attitude_rad=-1.0)
@@ -330,10 +330,10 @@ def test_bad_input():
         f.update([1, 0, 0, 0], np.ones((3, 3)))
     with pytest.raises(ValueError, match="covariance_rad2"):
         f.update([1, 0, 0, 0], np.eye(2))
-    with pytest.raises(ValueError, match="q_meas_body_to_world"):
+    with pytest.raises(ValueError, match="q_meas_body_to_icrs"):
         f.update([0, 0, 0, 0], cov)
     f.propagate([0, 0, 0], 1.0)
-    with pytest.raises(ValueError, match="q_meas_body_to_world"):
+    with pytest.raises(ValueError, match="q_meas_body_to_icrs"):
         f.update([0, 0, 0, 0], cov, t=1.5, omega_gyro=[0.1, 0, 0])  # rejected before propagating
     with pytest.raises(ValueError, match="t="):
         f.update([1, 0, 0, 0], cov, t=0.5)
@@ -345,4 +345,4 @@ def test_bad_input():
         f.process(np.zeros(3), 1.1, [[1, 0, 0, 0]], [1.05], cov)
     # nothing was changed by the rejected calls
     assert f.t_s == 1.0 and f.n_updates == 0
-    np.testing.assert_array_equal(f.q_body_to_world, [1, 0, 0, 0])
+    np.testing.assert_array_equal(f.q_body_to_icrs, [1, 0, 0, 0])

@@ -29,10 +29,10 @@ STAGES = {
     "physics (MuJoCo RK4)": ("spacecraft.py", "_step_recording"),
     "scene (truth projection)": ("scene.py", "compute_scene"),
     "detections (centroid/pixel)": ("centroid.py", "simulate_detections"),
-    "tracker (identify/predict/match/Wahba)": ("sensor.py", "_process_frame_checked"),
-    "  of which matching": ("track.py", "_match_stars_unchecked"),
-    "  of which Wahba": ("attitude.py", "_solve_wahba_batch_unchecked"),
-    "filter (MEKF)": ("filter.py", "_process_unit"),
+    "tracker (identify/predict/match/Wahba)": ("sensor.py", "_run_frame"),
+    "  of which matching": ("track.py", "match_stars"),
+    "  of which Wahba": ("kernels/attitude.py", "solve_wahba_batch"),
+    "filter (MEKF)": ("filter.py", "_fuse"),
     "gyro model": ("imu.py", "measure"),
 }
 

@@ -9,16 +9,8 @@ from gymnasium import spaces
 from envs.avionics import Avionics, AvionicsConfig, TRACKER_MODES
 from envs.faults import Fault, FaultSchedule, random_fault_schedule
 from envs.spacecraft import Spacecraft
-from startracker.rotations import (
-    quat_from_rotvec,
-    quat_multiply,
-    quat_normalize,
-    quat_random,
-    _quat_angle_between_unchecked,
-    _quat_multiply_unchecked,
-    _quat_to_rotvec_unchecked,
-    _CONJ,
-)
+from startracker.rotations import quat_from_rotvec, quat_multiply, quat_normalize, quat_random
+from startracker.kernels import rotations as rk
 
 __all__ = ["AgileSlewEnv"]
 
@@ -309,7 +301,7 @@ class AgileSlewEnv(gym.Env):
         self.avionics.advance(self.spacecraft, self.control_period_s, self.np_random)
 
         q_true = self.spacecraft.q_body_to_icrs
-        err = float(_quat_angle_between_unchecked(q_true, self._q_target))  # quat_angle_between on own float64 state
+        err = float(rk.quat_angle_between(q_true, self._q_target))  # quat_angle_between on own float64 state
         rate = float(np.linalg.norm(self.spacecraft.omega_body))
         dt = self.control_period_s
         settled_now = err <= self.settle_tolerance_rad and rate <= self.settle_rate_rad_s
@@ -330,8 +322,8 @@ class AgileSlewEnv(gym.Env):
     # ------------------------------------------------------------------ internals
     def _observation(self) -> np.ndarray:
         est = self.avionics.estimate()
-        q_err = _quat_multiply_unchecked(est.q_body_to_icrs * _CONJ, self._q_target)
-        e = _quat_to_rotvec_unchecked(q_err)
+        q_err = rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), self._q_target)
+        e = rk.quat_to_rotvec(q_err)
         w_max = self.avionics.gyro_max_rate_rad_s
         mode = np.zeros(3)
         mode[TRACKER_MODES.index(self.avionics.tracker_mode)] = 1.0
@@ -351,7 +343,7 @@ class AgileSlewEnv(gym.Env):
         """Normalised estimation error squared of the EKF attitude (3 dof; mean 3 when consistent), None before a fix."""
         if est.attitude_cov_rad2 is None:
             return None
-        d = _quat_to_rotvec_unchecked(_quat_multiply_unchecked(est.q_body_to_icrs * _CONJ, q_true))
+        d = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), q_true))
         return float(d @ np.linalg.solve(est.attitude_cov_rad2, d))
 
     def _info(self, reward_terms) -> dict:
@@ -366,8 +358,8 @@ class AgileSlewEnv(gym.Env):
             "estimate_valid": bool(est.valid),
             "q_target": self._q_target.copy(),
             "omega_true_body": self.spacecraft.omega_body,
-            "attitude_error_arcsec": float(np.degrees(_quat_angle_between_unchecked(q_true, est.q_body_to_icrs)) * 3600.0),
-            "pointing_error_deg": float(np.degrees(_quat_angle_between_unchecked(q_true, self._q_target))),
+            "attitude_error_arcsec": float(np.degrees(rk.quat_angle_between(q_true, est.q_body_to_icrs)) * 3600.0),
+            "pointing_error_deg": float(np.degrees(rk.quat_angle_between(q_true, self._q_target))),
             "update_rate_hz": stats["update_rate_hz"],
             "matching_latency_ms": stats["matching_latency_ms"],
             "tracker_mode": self.avionics.tracker_mode,

@@ -25,17 +25,7 @@ import numpy as np
 from startracker.catalog import load_catalog
 from startracker.filter import AttitudeEKF
 from startracker.imu import Gyro, gyro_preset, GYRO_GRADES
-from startracker.rotations import (
-    quat_conjugate,
-    quat_integrate,
-    quat_interpolate,
-    quat_rotate,
-    _quat_angle_between_unchecked,
-    _quat_interpolate_unchecked,
-    _quat_multiply_unchecked,
-    _quat_normalize_unchecked,
-    _quat_to_rotvec_unchecked,
-)
+from startracker.rotations import quat_conjugate, quat_integrate, quat_interpolate, quat_rotate
 from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
 
 from startracker.multifov import MultiFovSensor
@@ -43,6 +33,7 @@ from startracker.multifov import MultiFovSensor
 from envs.camera_head import HEAD_CAMERAS, make_head
 from envs.faults import FaultSchedule
 from startracker.sensor import StarTracker
+from startracker.kernels import rotations as rk
 
 __all__ = ["Avionics", "AvionicsConfig", "Estimate", "TRACKER_MODES"]
 
@@ -231,8 +222,8 @@ class Avionics:
                 times[k + 1] = spacecraft.time_s
                 quats[k + 1] = spacecraft.q_body_to_icrs
         # average true rate over each gyro interval, from the quaternion increment (body frame)
-        dq = _quat_multiply_unchecked(quat_conjugate(quats[:-1]), quats[1:])
-        omega_avg = _quat_to_rotvec_unchecked(dq) / np.diff(times)[:, None]
+        dq = rk.quat_multiply(quat_conjugate(quats[:-1]), quats[1:])
+        omega_avg = rk.quat_to_rotvec(dq) / np.diff(times)[:, None]
         omega_meas = self.gyro.measure(omega_avg, rng)
         if self.faults:
             omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
@@ -288,7 +279,7 @@ class Avionics:
             qm, tm, cm = np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3))
         if tg[0] > self.ekf.t_s - 1e-9 and (len(tm) == 0 or tm[-1] <= tg[-1] + 1e-9):
             # what ekf.process checks holds by construction (sorted, finite, unit, SPD from Wahba): skip the checks
-            accepted = self.ekf._process_unit(wg, tg, qm / np.linalg.norm(qm, axis=1)[:, None], tm, cm)
+            accepted = self.ekf.process(wg, tg, qm / np.linalg.norm(qm, axis=1)[:, None], tm, cm, validate=False)
         else:
             accepted = self.ekf.process(wg, tg, qm, tm, cm)
         # Persistent innovation: the tracker keeps reporting attitudes the filter gates out (a gyro bias jump the
@@ -320,9 +311,9 @@ class Avionics:
         inside = (t >= times[0]) & (t <= times[-1])
         if not inside.any():
             return 0
-        q_true = _quat_interpolate_unchecked(times, quats, t[inside])  # quat_interpolate on the own truth history
+        q_true = rk.quat_interpolate(times, quats, t[inside])  # quat_interpolate on the own truth history
         q_meas = np.array([s.q_body_to_icrs for s in samples])[inside]
-        err = _quat_angle_between_unchecked(q_true, q_meas)
+        err = rk.quat_angle_between(q_true, q_meas)
         cov = np.array([s.covariance_rad2 for s in samples])[inside]
         floor = np.radians(20 / 3600)
         # σ² = λ_max lies in [trace/3, trace]: most samples are decided by these bounds without an eigensolver
@@ -405,9 +396,9 @@ class Avionics:
             if self.faults or len(det) == 0 or det.xy.dtype != np.float64 or det.intensity.dtype != np.float64:
                 res = tracker.process_frame(det.xy, det.intensity, t_exp, t_frame, omega_body=omega_hint, q_body_prior=prior)
             else:  # detections and times built here to process_frame's contract: skip its input checks
-                res = tracker._process_frame_checked(
+                res = tracker.process_frame(
                     det.xy, det.intensity, t_exp, float(t_frame), omega_hint,
-                    None if prior is None else _quat_normalize_unchecked(prior))
+                    None if prior is None else rk.quat_normalize(prior), validate=False)
             self.head_modes[k] = res.mode
             samples.extend(res.samples)
             n_matched += int(res.n_matched)

@@ -38,7 +38,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array
 
 __all__ = ["Spacecraft", "pyramid_wheel_axes", "ASSET_PATH"]
 

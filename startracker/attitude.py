@@ -17,11 +17,13 @@ import math
 
 import numpy as np
 
-from startracker.rotations import _norm_last, _quat_from_matrix_unchecked, as_float_array
+
+from startracker.validation import as_float_array
+from startracker.kernels import attitude as wahba_kernels
 
 __all__ = ["WahbaSolution", "solve_wahba", "solve_wahba_batch", "solve_wahba_single", "RAD_TO_ARCSEC"]
 
-RAD_TO_ARCSEC = 180.0 / np.pi * 3600.0
+RAD_TO_ARCSEC = wahba_kernels.RAD_TO_ARCSEC
 
 
 @dataclass(frozen=True)
@@ -95,49 +97,7 @@ def solve_wahba_batch(v_meas, v_ref, sigma_rad, mask=None):
     if not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
         raise ValueError("sigma_rad must be positive and finite")
     m = np.ones(b.shape[:2], dtype=bool) if mask is None else np.broadcast_to(np.asarray(mask, dtype=bool), b.shape[:2])
-    return _solve_wahba_batch_unchecked(b, r, sigma, m)
-
-
-def _solve_wahba_batch_unchecked(b: np.ndarray, r: np.ndarray, sigma, m: np.ndarray):
-    """The work of :func:`solve_wahba_batch` for unit float64 ``b``, ``r`` (B, K, 3), positive ``sigma``
-    broadcastable to (B, K) and a bool mask ``m`` (B, K); same results."""
-    w = np.where(m, sigma**-2, 0.0)
-    attitude_profile = np.einsum("bk,bki,bkj->bij", w, r, b)
-    u, _, vt = np.linalg.svd(attitude_profile)
-    d = np.linalg.det(u) * np.linalg.det(vt)
-    u[:, :, 2] *= d[:, None]
-    rot = u @ vt
-    # Fisher information of the rotation error in the measurement frame.
-    eye = np.eye(3)
-    info = np.einsum("bk,ij->bij", w, eye) - np.einsum("bk,bki,bkj->bij", w, b, b)
-    n_used = m.sum(axis=1)
-    # Two or more non-parallel directions make the information matrix full rank.
-    eig_min = np.linalg.eigvalsh(info)[:, 0]
-    scale = np.maximum(w.sum(axis=1), 1e-300)
-    ok = (n_used >= 2) & (eig_min > 1e-10 * scale)
-    if ok.all():  # the usual case: no masked assignments (inv works matrix by matrix, so the same values)
-        cov = np.linalg.inv(info)
-    else:
-        cov = np.full((len(b), 3, 3), 0.0)
-        cov[ok] = np.linalg.inv(info[ok])
-        cov[~ok] = np.diag([np.inf, np.inf, np.inf])
-        rot[~ok] = eye
-    q = _quat_from_matrix_unchecked(rot)  # quat_from_matrix, bit for bit
-    rb = np.einsum("bij,bkj->bki", rot, b)
-    ang = np.arctan2(_norm_last(_cross(rb, r)), np.add.reduce(rb * r, axis=-1))
-    rms = np.sqrt(np.add.reduce(np.where(m, ang**2, 0.0), axis=1) / np.maximum(n_used, 1)) * RAD_TO_ARCSEC
-    return q, cov, rms, ok
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.cross`` over the last axis (length 3), the same products and differences without its overhead."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out[..., 0] = a1 * b2 - a2 * b1
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
-    return out
+    return wahba_kernels.solve_wahba_batch(b, r, sigma, m)
 
 
 def solve_wahba(v_meas, v_ref, sigma_rad=1e-5) -> WahbaSolution:

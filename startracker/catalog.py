@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array
 
 __all__ = [
     "StarCatalog",

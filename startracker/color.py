@@ -46,7 +46,7 @@ from startracker.registration import (
     calibrate_registration,
     generate_rotary_table_data,
 )
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array
 from startracker.scene import ExposurePlan, Scene, compute_scene
 
 __all__ = [
@@ -308,9 +308,9 @@ class ChannelCamera(Camera):
                    distortion_k1_per_mm2=camera.distortion_k1_per_mm2, q_cam_to_body=camera.q_cam_to_body,
                    name=camera.name if name is None else name, rotation_rad=rotation_rad)
 
-    def project(self, v_cam, return_in_front: bool = False):
+    def project(self, v_cam, return_in_front: bool = False, *, validate: bool = True):
         """As :meth:`Camera.project`, on the rotated detector (paper 004 eqs. 22-23)."""
-        xy, _, in_front = super().project(v_cam, return_in_front=True)
+        xy, _, in_front = super().project(v_cam, return_in_front=True, validate=validate)
         single = np.ndim(xy) == 1
         xy = np.atleast_2d(xy)
         if self.rotation_rad != 0.0:

@@ -32,7 +32,7 @@ from startracker.identify.frame import Frame, IdentifyOptions, prepare_frame
 from startracker.identify.pyramid import PairCandidates, smart_triads, triangles
 from startracker.identify.verification import Match, best_of, fast_rotation, triangle_false_rate, verify
 from startracker.optics import Camera
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array
 
 __all__ = ["ColorDatabase", "build_color_database", "identify_color", "ColorPruning"]
 

@@ -49,7 +49,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.linalg.lapack import dposv
 
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array, check_positive
 
 __all__ = ["AttitudeEKF"]
 
@@ -275,7 +275,7 @@ class AttitudeEKF:
         nq = float(np.linalg.norm(q))
         if nq < 1e-12:
             raise ValueError("q_body_to_icrs must be a non-zero quaternion")
-        self.sigma_v = self._positive(arw_rad_sqrt_s, "arw_rad_sqrt_s")
+        self.sigma_v = check_positive(arw_rad_sqrt_s, "arw_rad_sqrt_s")
         self.sigma_u = float(as_float_array(rrw_rad_s_sqrt_s, "rrw_rad_s_sqrt_s"))
         if self.sigma_u < 0.0:
             raise ValueError(f"rrw_rad_s_sqrt_s must be >= 0, got {rrw_rad_s_sqrt_s}")
@@ -287,7 +287,7 @@ class AttitudeEKF:
             raise ValueError(f"sigma_bias_rad_s must be > 0, got {sigma_bias_rad_s}")
         b = as_float_array(bias_rad_s, "bias_rad_s", last_dim=3, ndim=1)
         if gate_chi2 is not None:
-            gate_chi2 = self._positive(gate_chi2, "gate_chi2")
+            gate_chi2 = check_positive(gate_chi2, "gate_chi2")
         self.gate_chi2 = gate_chi2
 
         self.q_body_to_icrs = q / nq
@@ -302,13 +302,6 @@ class AttitudeEKF:
         self.ekf.x = np.zeros((6, 1))
         self.ekf.P = np.diag(np.concatenate([sa**2, sb**2]))
         self.ekf.Q = np.zeros((6, 6))
-
-    @staticmethod
-    def _positive(value, name):
-        v = float(as_float_array(value, name))
-        if not v > 0.0:
-            raise ValueError(f"{name} must be > 0, got {value}")
-        return v
 
     @classmethod
     def from_gyro_spec(cls, spec, q_body_to_icrs, **kwargs) -> "AttitudeEKF":
@@ -495,7 +488,8 @@ class AttitudeEKF:
 
     # ------------------------------------------------------------------ lean path
     def process(
-        self, omega_gyro, t_gyro_s, q_meas_body_to_icrs, t_meas_s, covariance_rad2, method: str = "auto"
+        self, omega_gyro, t_gyro_s, q_meas_body_to_icrs, t_meas_s, covariance_rad2, method: str = "auto", *,
+        validate: bool = True,
     ) -> np.ndarray:
         """Fuse a frame's gyro samples and attitude samples in time order (lean paths).
 
@@ -527,12 +521,18 @@ class AttitudeEKF:
 
         method : {"auto", "sequential", "batch"}
             Default ``"auto"``: batch for M >= 8 samples (the measured break-even), sequential otherwise.
+        validate : bool
+            False skips the checks, for a caller passing float64 arrays that meet them: ``omega_gyro`` (G, 3),
+            ``t_gyro_s`` (G,), unit ``q_meas_body_to_icrs`` (M, 4), ``t_meas_s`` (M,), symmetric positive definite
+            ``covariance_rad2`` (M, 3, 3), times ordered as above.
 
         Returns
         -------
         ndarray of bool, shape (M,)
             Which samples were accepted (all True without ``gate_chi2``).
         """
+        if not validate:
+            return self._fuse(omega_gyro, t_gyro_s, q_meas_body_to_icrs, t_meas_s, covariance_rad2, method)
         if method not in ("sequential", "batch", "auto"):
             raise ValueError(f"method must be 'sequential', 'batch' or 'auto', got {method!r}")
         wg = as_float_array(omega_gyro, "omega_gyro", last_dim=3).reshape(-1, 3)
@@ -555,11 +555,10 @@ class AttitudeEKF:
         if np.any(norms < 1e-12):
             raise ValueError("q_meas_body_to_icrs contains a zero quaternion")
         qm = qm / norms[:, None]
-        return self._process_unit(wg, tg, qm, tm, rs, method)
+        return self._fuse(wg, tg, qm, tm, rs, method)
 
-    def _process_unit(self, wg, tg, qm, tm, rs, method: str = "auto") -> np.ndarray:
-        """The work of :meth:`process` for inputs it has validated (or that the caller built to its contract):
-        float64 ``wg`` (G, 3), ``tg`` (G,), unit ``qm`` (M, 4), ``tm`` (M,), ``rs`` (M, 3, 3)."""
+    def _fuse(self, wg, tg, qm, tm, rs, method: str = "auto") -> np.ndarray:
+        """The work of :meth:`process` on checked inputs."""
         m = len(qm)
         if method == "batch" or (method == "auto" and m >= _AUTO_BATCH_MIN_SAMPLES):
             return self._process_batch(wg, tg, qm, tm, rs)

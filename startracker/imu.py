@@ -33,7 +33,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.signal import lfilter
 
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array, check_rng
 
 __all__ = [
     "GyroSpec",
@@ -211,11 +211,6 @@ class AccelerometerSpec:
         )
 
 
-def _check_rng(rng) -> None:
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-
-
 class _ThreeAxisSensor:
     """Shared error-state machinery of :class:`Gyro` and :class:`Accelerometer`."""
 
@@ -240,7 +235,7 @@ class _ThreeAxisSensor:
         ----------
         rng : numpy.random.Generator
         """
-        _check_rng(rng)
+        check_rng(rng)
         self._b_const = self._bias_sigma * rng.standard_normal(3)
         self._b_gm = self._gm_sigma * rng.standard_normal(3)
         self._b_rw = np.zeros(3)
@@ -277,7 +272,7 @@ class _ThreeAxisSensor:
         return np.arange(k0, k1 + 1) * self._dt
 
     def _measure(self, u, rng) -> np.ndarray:
-        _check_rng(rng)
+        check_rng(rng)
         u = as_float_array(u, self._input_name)
         if u.ndim not in (1, 2) or u.shape[-1] != 3:
             raise ValueError(f"{self._input_name} must have shape (3,) or (K, 3), got {u.shape}")

@@ -23,7 +23,8 @@ from __future__ import annotations
 import numpy as np
 
 from startracker.imu import GyroSpec
-from startracker.rotations import as_float_array, quat_to_matrix
+from startracker.rotations import quat_to_matrix
+from startracker.validation import as_float_array
 
 __all__ = ["propagate_attitude_error", "attitude_sigma_bound_rad"]
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array
 
 __all__ = ["KVector"]
 

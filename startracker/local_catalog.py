@@ -43,7 +43,8 @@ import numpy as np
 from startracker.catalog import StarCatalog
 from startracker.kvector import KVector
 from startracker.multifov import MultiFovSensor
-from startracker.rotations import as_float_array, quat_to_matrix
+from startracker.rotations import quat_to_matrix
+from startracker.validation import as_float_array
 
 __all__ = ["ObservedScope", "predict_scopes", "PairTable", "LocalCatalog", "los_bias_angles"]
 

@@ -39,7 +39,8 @@ from scipy.spatial import cKDTree
 
 from startracker.catalog import StarCatalog
 from startracker.optics import Camera
-from startracker.rotations import as_float_array, quat_from_matrix, quat_from_rotvec, quat_to_matrix
+from startracker.rotations import quat_from_matrix, quat_from_rotvec, quat_to_matrix
+from startracker.validation import as_float_array
 
 __all__ = [
     "MultiFovSensor",

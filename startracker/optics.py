@@ -17,7 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from startracker.rotations import as_float_array, quat_normalize, quat_to_matrix
+from startracker.rotations import quat_normalize, quat_to_matrix
+from startracker.kernels import optics as optics_kernels
+from startracker.validation import as_float_array
 
 __all__ = ["Camera", "CAMERA_PRESETS", "camera_preset"]
 
@@ -117,7 +119,7 @@ class Camera:
         return float(np.arctan(np.hypot(dx, dy) / self.focal_length_mm))
 
     # ------------------------------------------------------------------ projection
-    def project(self, v_cam, return_in_front: bool = False):
+    def project(self, v_cam, return_in_front: bool = False, *, validate: bool = True):
         """Project camera-frame directions to pixel coordinates.
 
         Parameters
@@ -126,6 +128,8 @@ class Camera:
             Directions in the camera frame (need not be unit length; must be non-zero).
         return_in_front : bool
             Also return the mask of points in front of the camera (Z > 0).
+        validate : bool
+            False skips the checks: for a caller passing a float64 (K, 3) array of non-zero directions.
 
         Returns
         -------
@@ -137,17 +141,15 @@ class Camera:
         in_front : ndarray of bool, shape (K,)
             Only when ``return_in_front``.
         """
-        v = as_float_array(v_cam, "v_cam", last_dim=3)
+        if validate:
+            v = as_float_array(v_cam, "v_cam", last_dim=3)
+            if np.any(np.all(v == 0.0, axis=-1)):
+                raise ValueError("v_cam contains a zero vector")
+        else:
+            v = v_cam
         single = v.ndim == 1
-        v = v.reshape(-1, 3)
-        if np.any(np.all(v == 0.0, axis=1)):
-            raise ValueError("v_cam contains a zero vector")
-        z = v[:, 2]
-        in_front = z > 1e-12 * np.linalg.norm(v, axis=1)
-        z_safe = np.where(in_front, z, 1.0)
-        xp = self.focal_length_mm * v[:, 0] / z_safe
-        yp = self.focal_length_mm * v[:, 1] / z_safe
-        xy = self.distort_mm_to_px(np.stack([xp, yp], axis=1))
+        xy, in_front = optics_kernels.project_pinhole(v.reshape(-1, 3), self.focal_length_mm, self.distortion_k1_per_mm2,
+                                                      self.pixel_size_mm, np.asarray(self.principal_point, dtype=np.float64))
         w, h = self.resolution
         in_frame = (
             in_front

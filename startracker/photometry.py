@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array
 
 __all__ = ["Photometry", "ARCSEC_PER_RAD", "V0_PHOTONS_S_CM2_NM"]
 

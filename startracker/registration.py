@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array
 
 __all__ = [
     "CHANNELS",

@@ -34,12 +34,9 @@ import numpy as np
 
 from startracker.catalog import StarCatalog
 from startracker.optics import Camera
-from startracker.rotations import (
-    _quat_from_matrix_unchecked,
-    _quat_interpolate_fast,
-    _quat_to_matrix_unchecked,
-    as_float_array,
-)
+from startracker.rotations import quat_interpolate
+from startracker.validation import as_float_array, check_int, check_positive
+from startracker.kernels import rotations as rk
 
 __all__ = [
     "ExposurePlan",
@@ -51,24 +48,6 @@ __all__ = [
     "compute_scene",
     "scene_from_tracks",
 ]
-
-
-def _positive(value, name: str, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    v = float(value)
-    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{name} must be finite and {bound}, got {value!r}")
-    return v
-
-
-def _int_at_least(value, name: str, lo: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
-    if int(value) < lo:
-        raise ValueError(f"{name} must be >= {lo}, got {value}")
-    return int(value)
 
 
 # --------------------------------------------------------------------------------------------- plan
@@ -105,11 +84,11 @@ class ExposurePlan:
     start_offset_s: float = 0.0
 
     def __post_init__(self):
-        n = _int_at_least(self.n_exposures, "n_exposures", 1)
-        tau = _positive(self.exposure_s, "exposure_s")
-        period = _positive(self.frame_period_s, "frame_period_s")
-        offset = _positive(self.start_offset_s, "start_offset_s", allow_zero=True)
-        spacing = period / n if self.spacing_s is None else _positive(self.spacing_s, "spacing_s", allow_zero=True)
+        n = check_int(self.n_exposures, "n_exposures", lo=1)
+        tau = check_positive(self.exposure_s, "exposure_s")
+        period = check_positive(self.frame_period_s, "frame_period_s")
+        offset = check_positive(self.start_offset_s, "start_offset_s", allow_zero=True)
+        spacing = period / n if self.spacing_s is None else check_positive(self.spacing_s, "spacing_s", allow_zero=True)
         if n > 1 and spacing < tau * (1 - 1e-12):
             raise ValueError(f"spacing_s ({spacing}) must be >= exposure_s ({tau}) so that exposures do not overlap")
         span = offset + (n - 1) * spacing + tau
@@ -276,11 +255,11 @@ def choose_n_exposures(
     int
         N in [1, n_max].
     """
-    period = _positive(frame_period_s, "frame_period_s")
-    tau = _positive(exposure_s, "exposure_s")
-    sigma = _positive(psf_sigma_px, "psf_sigma_px")
-    k = _positive(min_gap_sigma, "min_gap_sigma")
-    n_max = _int_at_least(n_max, "n_max", 1)
+    period = check_positive(frame_period_s, "frame_period_s")
+    tau = check_positive(exposure_s, "exposure_s")
+    sigma = check_positive(psf_sigma_px, "psf_sigma_px")
+    k = check_positive(min_gap_sigma, "min_gap_sigma")
+    n_max = check_int(n_max, "n_max", lo=1)
     if tau > period:
         raise ValueError(f"exposure_s ({tau}) must not exceed frame_period_s ({period})")
     v = min_image_speed_px_s(rate_rad_s, camera)
@@ -435,7 +414,7 @@ def _evaluate_attitude(attitude, t: np.ndarray) -> np.ndarray:
             raise ValueError(f"attitude(t) must return shape ({len(t)}, 4) (w, x, y, z), got {q.shape}")
     elif isinstance(attitude, (tuple, list)) and len(attitude) == 2:
         t_s, q_s = attitude
-        q = _quat_interpolate_fast(t_s, q_s, t)  # quat_interpolate's checks and result, without scipy's overhead
+        q = quat_interpolate(t_s, q_s, t)  # quat_interpolate's checks and result, without scipy's overhead
     else:
         raise TypeError("attitude must be a callable t -> q_body_to_icrs (len(t), 4) or a tuple (t_samples, q_samples)")
     if not np.all(np.isfinite(q)):
@@ -453,26 +432,6 @@ def _rotate_rows_transposed(r: np.ndarray, v: np.ndarray) -> np.ndarray:
     out += v[None, :, 1, None] * r[:, None, 1, :]
     out += v[None, :, 2, None] * r[:, None, 2, :]
     return out
-
-
-def _project_unchecked(camera: Camera, v: np.ndarray):
-    """:meth:`Camera.project` (``xy``, ``in_front``) of float64 non-zero (P, 3) directions, without its input checks
-    and its ``in_frame`` mask; the same arithmetic. Cameras that override ``project`` (a rotated channel detector)
-    go through their own method."""
-    if type(camera).project is not Camera.project:
-        xy, _, in_front = camera.project(v, return_in_front=True)
-        return xy, in_front
-    z = v[:, 2]
-    in_front = z > 1e-12 * np.sqrt(np.add.reduce(v * v, axis=1))
-    z_safe = np.where(in_front, z, 1.0)
-    f = camera.focal_length_mm
-    xy = np.empty((len(v), 2))
-    xy[:, 0] = f * v[:, 0] / z_safe
-    xy[:, 1] = f * v[:, 1] / z_safe
-    k1 = camera.distortion_k1_per_mm2
-    if k1 != 0.0:  # k1 = 0: the factor is exactly 1
-        xy = xy * (1.0 + k1 * np.add.reduce(xy**2, axis=-1, keepdims=True))
-    return xy / camera.pixel_size_mm + np.asarray(camera.principal_point), in_front
 
 
 _CORNER_CACHE: dict = {}
@@ -546,10 +505,10 @@ def compute_scene(
     if not isinstance(plan, ExposurePlan):
         raise TypeError(f"plan must be an ExposurePlan, got {type(plan).__name__}")
     t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))
-    s = _int_at_least(n_path_samples, "n_path_samples", 3)
+    s = check_int(n_path_samples, "n_path_samples", lo=3)
     if s % 2 == 0:
         raise ValueError(f"n_path_samples must be odd (the middle sample is the timestamp), got {s}")
-    margin = _positive(edge_margin_px, "edge_margin_px", allow_zero=True)
+    margin = check_positive(edge_margin_px, "edge_margin_px", allow_zero=True)
     bodies = tuple(bright_bodies)
     for b in bodies:
         if not isinstance(b, BrightBody):
@@ -559,7 +518,7 @@ def compute_scene(
     starts = plan.exposure_start_times(t0)
     path_times = starts[:, None] + plan.exposure_s * np.linspace(0.0, 1.0, s)[None, :]
     q_bw = _evaluate_attitude(attitude, path_times.ravel())
-    r_cw = _quat_to_matrix_unchecked(q_bw) @ camera.r_cam_to_body  # (N*S, 3, 3), v_world = R v_cam
+    r_cw = rk.quat_to_matrix(q_bw) @ camera.r_cam_to_body  # (N*S, 3, 3), v_world = R v_cam
     bores = r_cw[:, :, 2]
     centre = bores.mean(axis=0)
     centre /= np.linalg.norm(centre)
@@ -572,7 +531,7 @@ def compute_scene(
     if len(idx):
         v_world = catalog.vectors[idx]  # (K, 3)
         v_cam = _rotate_rows_transposed(r_cw, v_world)  # R^T v for every instant, (N*S, K, 3)
-        xy, in_front = _project_unchecked(camera, v_cam.reshape(-1, 3))
+        xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
         xy = xy.reshape(n * s, len(idx), 2)
         in_front = in_front.reshape(n * s, len(idx))
         near = (
@@ -619,7 +578,7 @@ def compute_scene(
         xy_path=xy_path,
         visible=visible,
         q_body_to_icrs=q_mid,
-        q_cam_to_icrs=_quat_from_matrix_unchecked(r_cw_mid),
+        q_cam_to_icrs=rk.quat_from_matrix(r_cw_mid),
         bright_bodies=tuple(views),
     )
 
@@ -670,7 +629,7 @@ def scene_from_tracks(
     if len(vel) != m:
         raise ValueError("velocity_px_s must have one row per star")
     b = np.zeros(m) if bv is None else as_float_array(bv, "bv", ndim=1)
-    s = _int_at_least(n_path_samples, "n_path_samples", 3)
+    s = check_int(n_path_samples, "n_path_samples", lo=3)
     if s % 2 == 0:
         raise ValueError(f"n_path_samples must be odd, got {s}")
     t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))

@@ -52,27 +52,19 @@ from startracker.catalog import StarCatalog
 from startracker.identify import METHODS as ID_METHODS
 from startracker.identify import IdentificationResult, identify
 from startracker.optics import Camera
-from startracker.rotations import (
-    _CONJ,
-    _quat_multiply_unchecked,
-    _quat_normalize_unchecked,
-    _quat_to_rotvec_unchecked,
-    as_float_array,
-    quat_conjugate,
-    quat_multiply,
-    quat_normalize,
-    quat_to_rotvec,
-)
+from startracker.rotations import quat_conjugate, quat_multiply, quat_normalize, quat_to_rotvec
+from startracker.validation import as_float_array, check_positive
 from startracker.track import (
-    _attitudes_per_instant_unchecked,
-    _match_stars_unchecked,
-    _predict_star_positions_unchecked,
-    _prediction_covariance_fast,
-    _prediction_sigma_px_fast,
     MATCH_METHODS,
     RADIUS_K_SIGMA,
     prediction_radius_px,
+    attitudes_per_instant,
+    match_stars,
+    predict_star_positions,
+    prediction_covariance,
+    prediction_sigma_px,
 )
+from startracker.kernels import rotations as rk
 
 __all__ = ["StarTracker", "FrameResult", "AttitudeSample", "MotionState", "MODES"]
 
@@ -204,14 +196,6 @@ class _Attempt:
     state: MotionState | None = None
 
 
-def _positive(name, v, allow_zero=False):
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
-        raise ValueError(f"{name} must be a finite number, got {v!r}")
-    if v < 0 or (v == 0 and not allow_zero):
-        raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'}, got {v!r}")
-    return float(v)
-
-
 class StarTracker:
     """Lost-in-space identification plus multi-exposure tracking, one frame per call.
 
@@ -307,37 +291,37 @@ class StarTracker:
         self.catalog = catalog
         self.identify_method = identify_method
         self.matcher = matcher
-        self.centroid_sigma_px = _positive("centroid_sigma_px", centroid_sigma_px)
-        self.frame_period_s = _positive("frame_period_s", frame_period_s)
+        self.centroid_sigma_px = check_positive(centroid_sigma_px, "centroid_sigma_px")
+        self.frame_period_s = check_positive(frame_period_s, "frame_period_s")
         if isinstance(max_exposures, bool) or int(max_exposures) != max_exposures or max_exposures < 1:
             raise ValueError(f"max_exposures must be an integer >= 1, got {max_exposures!r}")
         self.max_exposures = int(max_exposures)
-        self.rate_per_exposure_deg_s = _positive("rate_per_exposure_deg_s", rate_per_exposure_deg_s)
-        self.radius_k_sigma = _positive("radius_k_sigma", radius_k_sigma)
-        self.radius_min_px = _positive("radius_min_px", radius_min_px, allow_zero=True)
-        self.radius_max_px = _positive("radius_max_px", radius_max_px)
+        self.rate_per_exposure_deg_s = check_positive(rate_per_exposure_deg_s, "rate_per_exposure_deg_s")
+        self.radius_k_sigma = check_positive(radius_k_sigma, "radius_k_sigma")
+        self.radius_min_px = check_positive(radius_min_px, "radius_min_px", allow_zero=True)
+        self.radius_max_px = check_positive(radius_max_px, "radius_max_px")
         if self.radius_max_px < self.radius_min_px:
             raise ValueError("radius_max_px must be >= radius_min_px")
         if isinstance(min_stars_per_instant, bool) or int(min_stars_per_instant) != min_stars_per_instant or min_stars_per_instant < 2:
             raise ValueError(f"min_stars_per_instant must be an integer >= 2, got {min_stars_per_instant!r}")
         self.min_stars_per_instant = int(min_stars_per_instant)
-        self.min_matched_fraction = _positive("min_matched_fraction", min_matched_fraction, allow_zero=True)
+        self.min_matched_fraction = check_positive(min_matched_fraction, "min_matched_fraction", allow_zero=True)
         if self.min_matched_fraction > 1:
             raise ValueError(f"min_matched_fraction must be in [0, 1], got {min_matched_fraction}")
         self.sigma_rad = self.centroid_sigma_px / camera.focal_length_px
         expected = np.sqrt(2.0) * self.sigma_rad * RAD_TO_ARCSEC
         self.max_residual_arcsec = (
-            3.0 * expected if max_residual_arcsec is None else _positive("max_residual_arcsec", max_residual_arcsec)
+            3.0 * expected if max_residual_arcsec is None else check_positive(max_residual_arcsec, "max_residual_arcsec")
         )
-        self.outlier_k_sigma = _positive("outlier_k_sigma", outlier_k_sigma)
-        self.innovation_gate = _positive("innovation_gate", innovation_gate)
-        self.shift_k_sigma = _positive("shift_k_sigma", shift_k_sigma, allow_zero=True)
-        self.accel_sigma_rad_s2 = _positive("accel_sigma_rad_s2", accel_sigma_rad_s2, allow_zero=True)
-        self.recovery_accel_sigma_rad_s2 = _positive("recovery_accel_sigma_rad_s2", recovery_accel_sigma_rad_s2, allow_zero=True)
-        self.gyro_sigma_rad_s = _positive("gyro_sigma_rad_s", gyro_sigma_rad_s, allow_zero=True)
-        self.max_rate_rad_s = float(np.radians(_positive("max_rate_deg_s", max_rate_deg_s)))
-        self.coast_max_s = _positive("coast_max_s", coast_max_s, allow_zero=True)
-        self.prior_sigma_rad = _positive("prior_sigma_rad", prior_sigma_rad)
+        self.outlier_k_sigma = check_positive(outlier_k_sigma, "outlier_k_sigma")
+        self.innovation_gate = check_positive(innovation_gate, "innovation_gate")
+        self.shift_k_sigma = check_positive(shift_k_sigma, "shift_k_sigma", allow_zero=True)
+        self.accel_sigma_rad_s2 = check_positive(accel_sigma_rad_s2, "accel_sigma_rad_s2", allow_zero=True)
+        self.recovery_accel_sigma_rad_s2 = check_positive(recovery_accel_sigma_rad_s2, "recovery_accel_sigma_rad_s2", allow_zero=True)
+        self.gyro_sigma_rad_s = check_positive(gyro_sigma_rad_s, "gyro_sigma_rad_s", allow_zero=True)
+        self.max_rate_rad_s = float(np.radians(check_positive(max_rate_deg_s, "max_rate_deg_s")))
+        self.coast_max_s = check_positive(coast_max_s, "coast_max_s", allow_zero=True)
+        self.prior_sigma_rad = check_positive(prior_sigma_rad, "prior_sigma_rad")
         self.identify_options = {"sigma_px": self.centroid_sigma_px, **(identify_options or {})}
         self.reset()
 
@@ -384,14 +368,15 @@ class StarTracker:
         # The next frame's last exposure: its centre is one interval after the last frame's centre, and its
         # exposures spread over at most a frame period.
         horizon = max(period, self._last_exp_centre + 1.5 * period - st.t_s)
-        sigma = _prediction_sigma_px_fast(self.camera, st.cov_theta_rad2, horizon, st.cov_omega, self._cov_alpha_total(st))
+        sigma = prediction_sigma_px(self.camera, st.cov_theta_rad2, horizon, st.cov_omega, self._cov_alpha_total(st), validate=False)
         w_cam = self.camera.r_cam_to_body.T @ st.omega_body
         travel_px = float(np.hypot(w_cam[0], w_cam[1])) * period * self.camera.focal_length_px
         n_sep = n_rate if self.shift_k_sigma == 0 or sigma == 0 else int(travel_px / (2.0 * self.shift_k_sigma * sigma))
         return min(max(min(n_rate, n_sep), 1), self.max_exposures)  # np.clip on Python ints
 
     # ------------------------------------------------------------------ one frame
-    def process_frame(self, xy, intensity, exposure_times, frame_time, omega_body=None, q_body_prior=None) -> FrameResult:
+    def process_frame(self, xy, intensity, exposure_times, frame_time, omega_body=None, q_body_prior=None, *,
+                      validate: bool = True) -> FrameResult:
         """Run one frame of detections through the state machine.
 
         Parameters
@@ -409,11 +394,18 @@ class StarTracker:
         q_body_prior : array_like, shape (4,), optional
             External attitude prior at ``frame_time`` (e.g. a filter's propagated estimate), used to
             recover while lost.
+        validate : bool
+            False skips the checks, for a caller passing inputs in the form they produce: float64 ``xy`` (K, 2),
+            positive float64 ``intensity`` (K,) or None, strictly increasing float64 ``exposure_times`` (N,),
+            float ``frame_time``, float64 ``omega_body`` (3,) or None, unit canonical float64 ``q_body_prior``
+            (4,) (as ``quat_normalize`` returns) or None.
 
         Returns
         -------
         FrameResult
         """
+        if not validate:
+            return self._run_frame(xy, intensity, exposure_times, frame_time, omega_body, q_body_prior)
         xy = np.empty((0, 2)) if np.size(xy) == 0 else as_float_array(xy, "xy", last_dim=2, ndim=2)
         if intensity is not None:
             intensity = np.empty(0) if np.size(intensity) == 0 else as_float_array(intensity, "intensity", ndim=1)
@@ -429,12 +421,10 @@ class StarTracker:
         t_frame = float(as_float_array(frame_time, "frame_time"))
         gyro = None if omega_body is None else as_float_array(omega_body, "omega_body", last_dim=3, ndim=1)
         prior = None if q_body_prior is None else quat_normalize(as_float_array(q_body_prior, "q_body_prior", 4, 1))
-        return self._process_frame_checked(xy, intensity, t_exp, t_frame, gyro, prior)
+        return self._run_frame(xy, intensity, t_exp, t_frame, gyro, prior)
 
-    def _process_frame_checked(self, xy, intensity, t_exp, t_frame, gyro, prior) -> FrameResult:
-        """The work of :meth:`process_frame` on inputs in the form its checks produce: float64 ``xy`` (K, 2),
-        positive float64 ``intensity`` (K,) or None, strictly increasing float64 ``t_exp`` (N,), float ``t_frame``,
-        float64 ``gyro`` (3,) or None, unit canonical float64 ``prior`` (4,) (as ``quat_normalize`` returns) or None."""
+    def _run_frame(self, xy, intensity, t_exp, t_frame, gyro, prior) -> FrameResult:
+        """The work of :meth:`process_frame` on checked inputs."""
         if self._last_frame_time is not None and t_frame <= self._last_frame_time:
             self.reset()  # time went backwards: a new run, nothing of the old one is valid
         if self._mode == "track":
@@ -570,7 +560,7 @@ class StarTracker:
         t0 = time.perf_counter()
         omega, alpha, cov_w, cov_a = self._propagation(st, gyro, t_frame)
         cov_a = cov_a + extra_var_alpha * np.eye(3)
-        sig_pred = _prediction_sigma_px_fast(self.camera, st.cov_theta_rad2, t_exp - st.t_s, cov_w, cov_a)
+        sig_pred = prediction_sigma_px(self.camera, st.cov_theta_rad2, t_exp - st.t_s, cov_w, cov_a, validate=False)
         r = prediction_radius_px(self.centroid_sigma_px, sig_pred, self.radius_k_sigma, self.radius_min_px, self.radius_max_px)
         if len(t_exp) > 1:
             # Spots of one star one exposure apart must be well separated against the prediction error,
@@ -582,16 +572,17 @@ class StarTracker:
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
                                        f"apart, prediction σ {sig_pred:.1f} px)", [], 0, 0, r, latency)
         # predict_star_positions and match_stars on the tracker's own checked state (their checks skipped)
-        pred = _predict_star_positions_unchecked(
-            self.camera, self.catalog, _quat_normalize_unchecked(np.asarray(st.q_body_to_icrs, dtype=np.float64)),
-            t_exp, float(st.t_s), np.asarray(omega, dtype=np.float64), np.asarray(alpha, dtype=np.float64), float(r))
-        idx = _match_stars_unchecked(pred.xy, xy, float(r), self.matcher)
+        pred = predict_star_positions(
+            self.camera, self.catalog, rk.quat_normalize(np.asarray(st.q_body_to_icrs, dtype=np.float64)),
+            t_exp, float(st.t_s), np.asarray(omega, dtype=np.float64), np.asarray(alpha, dtype=np.float64), float(r),
+            validate=False)
+        idx = match_stars(pred.xy, xy, float(r), self.matcher, validate=False)
         latency = (time.perf_counter() - t0) * 1e3
         n_pred = int(pred.on_detector.sum())
         if n_pred == 0:
             return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
-        inst = _attitudes_per_instant_unchecked(xy, idx, pred, self.camera, self.catalog, self.centroid_sigma_px,
-                                                self.min_stars_per_instant, self.outlier_k_sigma)
+        inst = attitudes_per_instant(xy, idx, pred, self.camera, self.catalog, self.centroid_sigma_px,
+                                     self.min_stars_per_instant, self.outlier_k_sigma, validate=False)
         n_matched = int(np.sum(inst.assignment >= 0))
         frac = n_matched / n_pred
         ok_i = inst.ok
@@ -613,8 +604,8 @@ class StarTracker:
                                    f"{np.median(n_st):.0f}): matched one exposure off", [], **base)
         # Innovation: solved vs predicted attitude at each solved instant.
         sel = np.flatnonzero(ok_i)
-        delta = _quat_to_rotvec_unchecked(_quat_multiply_unchecked(pred.q_body_to_icrs[sel] * _CONJ, inst.q_body_to_icrs[sel]))
-        s = _prediction_covariance_fast(st.cov_theta_rad2, inst.times_s[sel] - st.t_s, cov_w, cov_a) + inst.covariance_rad2[sel]
+        delta = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(pred.q_body_to_icrs[sel]), inst.q_body_to_icrs[sel]))
+        s = prediction_covariance(st.cov_theta_rad2, inst.times_s[sel] - st.t_s, cov_w, cov_a, validate=False) + inst.covariance_rad2[sel]
         nis = float(np.mean(np.einsum("ni,ni->n", delta, np.linalg.solve(s, delta[..., None])[..., 0])))
         if nis > self.innovation_gate:
             return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", [], **base)
@@ -640,14 +631,14 @@ class StarTracker:
         elif len(t) >= 3:
             # Least-squares line θ(τ) = c + ω τ through the rotation vectors relative to the last instant:
             # its slope is the rate at the mean time.
-            theta = _quat_to_rotvec_unchecked(_quat_multiply_unchecked((q_ref * _CONJ)[None], q))
+            theta = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(q_ref)[None], q))
             tau = t - t_ref
             sxx = float(np.sum((tau - tau.mean()) ** 2))
             w_fit = ((tau - tau.mean()) @ (theta - theta.mean(axis=0))) / sxx
             meas = (float(t.mean()), w_fit, covs.mean(axis=0) / sxx)
         elif t_ref > st.t_s:
             dt = t_ref - st.t_s
-            rotvec = _quat_to_rotvec_unchecked(_quat_multiply_unchecked(np.asarray(st.q_body_to_icrs, dtype=np.float64) * _CONJ, q_ref))
+            rotvec = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(np.asarray(st.q_body_to_icrs, dtype=np.float64)), q_ref))
             meas = (st.t_s + dt / 2, rotvec / dt, (st.cov_theta_rad2 + cov_ref) / dt**2)
         else:
             meas = None

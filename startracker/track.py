@@ -42,19 +42,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from startracker.attitude import _cross, _solve_wahba_batch_unchecked
+from startracker.kernels import attitude as wahba_kernels
 from startracker.catalog import StarCatalog
 from startracker.kvector import KVector
 from startracker.optics import Camera
-from startracker.scene import _project_unchecked
-from startracker.rotations import (
-    _norm_last,
-    _quat_integrate_unchecked,
-    _quat_multiply_unchecked,
-    _quat_to_matrix_unchecked,
-    as_float_array,
-    quat_normalize,
-)
+from startracker.rotations import quat_normalize
+from startracker.validation import as_float_array
+from startracker.kernels import rotations as rk
 
 __all__ = [
     "MATCH_METHODS",
@@ -145,8 +139,9 @@ class DKVLUT:
 
     __slots__ = ("xy", "kx", "ky", "n", "_xy_t", "_k_table", "_row_offset", "_line", "_degenerate", "_cross")
 
-    def __init__(self, predicted_xy, _checked: bool = False):
-        xy = predicted_xy if _checked else _check_points(predicted_xy, "predicted_xy")
+    def __init__(self, predicted_xy, *, validate: bool = True):
+        # validate=False: the caller passes a float64 (W, 2) array of finite points
+        xy = _check_points(predicted_xy, "predicted_xy") if validate else predicted_xy
         if len(xy) == 0:
             raise ValueError("predicted_xy must contain at least one point")
         self.xy = xy
@@ -305,7 +300,7 @@ def _match_kdtree(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
     return idx.astype(np.int64)
 
 
-def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut") -> np.ndarray:
+def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut", *, validate: bool = True) -> np.ndarray:
     """Match observed spots to predicted spots (star neighbourhood approach).
 
     Parameters
@@ -319,6 +314,9 @@ def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut") ->
     method : {"dkvlut", "brute", "kdtree"}
         Paper 000's double k-vector lookup table, the all-pairs "existing method", or scipy's cKDTree.
         All three return the same answer.
+    validate : bool
+        False skips the checks: for a caller passing float64 (W, 2) and (Q, 2) arrays of finite points, a float
+        radius >= 0 and a known method (the star tracker's per-frame path).
 
     Returns
     -------
@@ -331,20 +329,18 @@ def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut") ->
     ValueError
         Bad shapes, NaN/inf coordinates, negative radius, unknown method.
     """
-    if method not in MATCH_METHODS:
-        raise ValueError(f"method must be one of {MATCH_METHODS}, got {method!r}")
-    pred = _check_points(predicted_xy, "predicted_xy")
-    obs = _check_points(observed_xy, "observed_xy")
-    r = _check_radius(radius_px)
-    return _match_stars_unchecked(pred, obs, r, method)
-
-
-def _match_stars_unchecked(pred: np.ndarray, obs: np.ndarray, r: float, method: str) -> np.ndarray:
-    """:func:`match_stars` for checked float64 (W, 2) and (Q, 2) arrays and a float radius."""
+    if validate:
+        if method not in MATCH_METHODS:
+            raise ValueError(f"method must be one of {MATCH_METHODS}, got {method!r}")
+        pred = _check_points(predicted_xy, "predicted_xy")
+        obs = _check_points(observed_xy, "observed_xy")
+        r = _check_radius(radius_px)
+    else:
+        pred, obs, r = predicted_xy, observed_xy, radius_px
     if len(pred) == 0 or len(obs) == 0:
         return np.full(len(obs), -1, dtype=np.int64)
     if method == "dkvlut":
-        return DKVLUT(pred, _checked=True)._match(obs, r)
+        return DKVLUT(pred, validate=False)._match(obs, r)
     if method == "brute":
         return _match_brute(pred, obs, r)
     return _match_kdtree(pred, obs, r)
@@ -395,6 +391,8 @@ def predict_star_positions(
     omega_body=None,
     alpha_body=None,
     margin_px: float = 0.0,
+    *,
+    validate: bool = True,
 ) -> PredictedStars:
     """Predicted pixel position of every catalog star in the field of view at each exposure instant.
 
@@ -420,11 +418,19 @@ def predict_star_positions(
     margin_px : float
         Also keep spots up to this far outside the detector (a spot predicted just off the edge may be
         observed just inside it). >= 0.
+    validate : bool
+        False skips the checks and the normalisation: for a caller passing a unit canonical (4,) float64
+        quaternion (as ``quat_normalize`` returns), (N,) float64 times, float ``t_ref_s`` and ``margin_px``,
+        and (3,) float64 rates.
 
     Returns
     -------
     PredictedStars
     """
+    if not validate:
+        w = np.zeros(3) if omega_body is None else omega_body
+        a = np.zeros(3) if alpha_body is None else alpha_body
+        return _predict(camera, catalog, q_body_to_icrs, times_s, t_ref_s, w, a, margin_px)
     if not isinstance(camera, Camera):
         raise TypeError("camera must be a startracker.optics.Camera")
     if not isinstance(catalog, StarCatalog):
@@ -439,16 +445,16 @@ def predict_star_positions(
     margin = float(as_float_array(margin_px, "margin_px"))
     if margin < 0:
         raise ValueError(f"margin_px must be >= 0, got {margin_px}")
-    return _predict_star_positions_unchecked(camera, catalog, q0, t, t_ref, w, a, margin)
+    return _predict(camera, catalog, q0, t, t_ref, w, a, margin)
 
 
-def _predict_star_positions_unchecked(camera: Camera, catalog: StarCatalog, q0: np.ndarray, t: np.ndarray,
-                                      t_ref: float, w: np.ndarray, a: np.ndarray, margin: float) -> PredictedStars:
+def _predict(camera: Camera, catalog: StarCatalog, q0: np.ndarray, t: np.ndarray,
+             t_ref: float, w: np.ndarray, a: np.ndarray, margin: float) -> PredictedStars:
     """The work of :func:`predict_star_positions`: ``q0`` a unit canonical (4,) float64 quaternion (as
     ``quat_normalize`` returns), ``t`` (N,) float64, ``w`` and ``a`` (3,) float64, ``margin`` >= 0."""
-    q_body = _quat_integrate_unchecked(q0, w, t - t_ref, a).reshape(len(t), 4)
-    q_cam = _quat_multiply_unchecked(q_body, np.asarray(camera.q_cam_to_body))  # cam -> body -> icrs
-    r_cam_to_icrs = _quat_to_matrix_unchecked(q_cam)  # (N, 3, 3)
+    q_body = rk.quat_integrate(q0, w, t - t_ref, a).reshape(len(t), 4)
+    q_cam = rk.quat_multiply(q_body, np.asarray(camera.q_cam_to_body))  # cam -> body -> icrs
+    r_cam_to_icrs = rk.quat_to_matrix(q_cam)  # (N, 3, 3)
 
     # Candidate stars: one cone around the mean boresight wide enough for the whole frame.
     bore = r_cam_to_icrs[:, :, 2]
@@ -464,7 +470,7 @@ def _predict_star_positions_unchecked(camera: Camera, catalog: StarCatalog, q0: 
         return PredictedStars(np.empty((0, 2)), e, e.copy(), np.empty(0, dtype=bool), t, q_body)
     v_icrs = catalog.vectors[cand]  # (S, 3)
     v_cam = v_icrs[None] @ r_cam_to_icrs  # (R^T v)^T = v^T R per instant, (N, S, 3)
-    xy, in_front = _project_unchecked(camera, v_cam.reshape(-1, 3))  # camera.project without its checks
+    xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
     wdt, hgt = camera.resolution
     x, y = xy[:, 0], xy[:, 1]
     keep = in_front & (x >= -0.5 - margin) & (x <= wdt - 0.5 + margin) & (y >= -0.5 - margin) & (y <= hgt - 0.5 + margin)
@@ -482,7 +488,7 @@ def _as_cov3(a, name: str) -> np.ndarray:
     return c
 
 
-def prediction_covariance(cov_theta_body_rad2, dt_s, cov_omega_body=0.0, cov_alpha_body=0.0) -> np.ndarray:
+def prediction_covariance(cov_theta_body_rad2, dt_s, cov_omega_body=0.0, cov_alpha_body=0.0, *, validate: bool = True) -> np.ndarray:
     """Attitude error covariance after propagating for ``dt_s`` (body frame, rad²).
 
     ``P(dt) = P_θ + P_ω dt² + P_α dt⁴ / 4``: the second-order propagation of
@@ -496,11 +502,18 @@ def prediction_covariance(cov_theta_body_rad2, dt_s, cov_omega_body=0.0, cov_alp
         (rad/s)²; a float is an isotropic variance.
     cov_alpha_body : float or array_like, shape (3, 3)
         (rad/s²)², estimate error plus unmodelled change; a float is an isotropic variance.
+    validate : bool
+        False skips the checks when the three covariances are (3, 3) float64 arrays and ``dt_s`` is finite (a
+        float or a float64 array), as the tracker's own state holds them; other forms are still converted.
 
     Returns
     -------
     ndarray, shape (3, 3) or (N, 3, 3)
     """
+    p, pw, pa = cov_theta_body_rad2, cov_omega_body, cov_alpha_body
+    if not validate and _is_cov3(p) and _is_cov3(pw) and _is_cov3(pa):
+        dt = np.asarray(dt_s, dtype=np.float64)[..., None, None]
+        return p + pw * dt**2 + pa * dt**4 / 4.0
     p = _as_cov3(cov_theta_body_rad2, "cov_theta_body_rad2")
     pw = _as_cov3(cov_omega_body, "cov_omega_body")
     pa = _as_cov3(cov_alpha_body, "cov_alpha_body")
@@ -512,17 +525,8 @@ def _is_cov3(a) -> bool:
     return type(a) is np.ndarray and a.shape == (3, 3) and a.dtype == np.float64
 
 
-def _prediction_covariance_fast(cov_theta_body_rad2, dt_s, cov_omega_body, cov_alpha_body) -> np.ndarray:
-    """:func:`prediction_covariance` (same result) skipping the checks when the covariances are (3, 3) float64
-    arrays and ``dt_s`` a float64 array or float, as the tracker's own state holds them."""
-    p, pw, pa = cov_theta_body_rad2, cov_omega_body, cov_alpha_body
-    if not (_is_cov3(p) and _is_cov3(pw) and _is_cov3(pa)):
-        return prediction_covariance(p, dt_s, pw, pa)
-    dt = np.asarray(dt_s, dtype=np.float64)[..., None, None]
-    return p + pw * dt**2 + pa * dt**4 / 4.0
-
-
-def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, dt_s=0.0, cov_omega_body=0.0, cov_alpha_body=0.0) -> float:
+def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, dt_s=0.0, cov_omega_body=0.0, cov_alpha_body=0.0, *,
+                        validate: bool = True) -> float:
     """1σ per-axis prediction error of a spot, px, after propagating an attitude for ``dt_s``.
 
     From :func:`prediction_covariance` in the camera frame: a cross-boresight error moves every spot by
@@ -540,20 +544,18 @@ def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, dt_s=0.0, cov_omega
         Rate error covariance in the body frame, (rad/s)²; a float is an isotropic variance.
     cov_alpha_body : float or array_like, shape (3, 3)
         Acceleration error covariance (estimate and unmodelled change), (rad/s²)².
+    validate : bool
+        False skips the checks as :func:`prediction_covariance` does, for a finite float64 ``dt_s``.
 
     Returns
     -------
     float, px
     """
-    dt = float(np.max(np.abs(as_float_array(dt_s, "dt_s")))) if np.size(dt_s) else 0.0
-    pt = prediction_covariance(cov_theta_body_rad2, dt, cov_omega_body, cov_alpha_body)
-    return _sigma_px_from_cov(camera, pt)
-
-
-def _prediction_sigma_px_fast(camera: Camera, cov_theta_body_rad2, dt_s, cov_omega_body, cov_alpha_body) -> float:
-    """:func:`prediction_sigma_px` (same result) for a finite float64 ``dt_s`` (float or array) from the tracker."""
+    if validate:
+        dt_s = as_float_array(dt_s, "dt_s")
     dt = float(np.max(np.abs(dt_s))) if np.size(dt_s) else 0.0
-    return _sigma_px_from_cov(camera, _prediction_covariance_fast(cov_theta_body_rad2, dt, cov_omega_body, cov_alpha_body))
+    pt = prediction_covariance(cov_theta_body_rad2, dt, cov_omega_body, cov_alpha_body, validate=validate)
+    return _sigma_px_from_cov(camera, pt)
 
 
 def _sigma_px_from_cov(camera: Camera, pt: np.ndarray) -> float:
@@ -645,6 +647,8 @@ def attitudes_per_instant(
     sigma_px: float,
     min_stars: int = 3,
     outlier_k_sigma: float = 5.0,
+    *,
+    validate: bool = True,
 ) -> InstantAttitudes:
     """Group matched detections by exposure instant and solve one Wahba problem per instant.
 
@@ -667,11 +671,16 @@ def attitudes_per_instant(
         Instants with fewer stars are skipped (>= 2).
     outlier_k_sigma : float
         Residual test threshold in units of the angular noise.
+    validate : bool
+        False skips the checks: ``observed_xy`` float64 (K, 2), ``match_idx`` int64 (K,) as :func:`match_stars`
+        returns it for this prediction, a positive ``sigma_px`` and ``min_stars`` >= 2.
 
     Returns
     -------
     InstantAttitudes
     """
+    if not validate:
+        return _solve_instants(observed_xy, match_idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma)
     obs = _check_points(observed_xy, "observed_xy")
     idx = np.asarray(match_idx, dtype=np.int64)
     if idx.shape != (len(obs),):
@@ -682,11 +691,11 @@ def attitudes_per_instant(
         raise ValueError(f"sigma_px must be positive, got {sigma_px}")
     if int(min_stars) < 2:
         raise ValueError(f"min_stars must be >= 2, got {min_stars}")
-    return _attitudes_per_instant_unchecked(obs, idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma)
+    return _solve_instants(obs, idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma)
 
 
-def _attitudes_per_instant_unchecked(obs, idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma):
-    """The work of :func:`attitudes_per_instant` for checked inputs (``obs`` float64 (K, 2), ``idx`` int64 (K,))."""
+def _solve_instants(obs, idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma):
+    """The work of :func:`attitudes_per_instant` on checked inputs."""
     n_t = len(prediction.times_s)
     assign = _unique_assignment(obs, prediction.xy, idx)
     q_obs = np.flatnonzero(assign >= 0)
@@ -711,13 +720,13 @@ def _attitudes_per_instant_unchecked(obs, idx, prediction, camera, catalog, sigm
     thr = outlier_k_sigma * sigma_rad
     n_out = 0
     # solve_wahba_batch's input checks and normalisation, once for all passes
-    b_unit = v_body / _norm_last(v_body, keepdims=True)
-    r_unit = v_ref / _norm_last(v_ref, keepdims=True)
+    b_unit = v_body / rk.vector_norm(v_body, keepdims=True)
+    r_unit = v_ref / rk.vector_norm(v_ref, keepdims=True)
     sigma_b = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), b_unit.shape[:2])
     for _ in range(kmax):  # a handful of passes: one outlier per instant per pass
-        q, cov, rms, ok = _solve_wahba_batch_unchecked(b_unit, r_unit, sigma_b, mask)
-        rb = np.einsum("bij,bkj->bki", _quat_to_matrix_unchecked(q), v_body)
-        ang = np.arctan2(_norm_last(_cross(rb, v_ref)), np.add.reduce(rb * v_ref, axis=-1))
+        q, cov, rms, ok = wahba_kernels.solve_wahba_batch(b_unit, r_unit, sigma_b, mask)
+        rb = np.einsum("bij,bkj->bki", rk.quat_to_matrix(q), v_body)
+        ang = np.arctan2(rk.vector_norm(rk.cross(rb, v_ref)), np.add.reduce(rb * v_ref, axis=-1))
         ang = np.where(mask, ang, -1.0)
         worst = np.argmax(ang, axis=1)
         bad = (ang[np.arange(n_t), worst] > thr) & (mask.sum(axis=1) > 2)

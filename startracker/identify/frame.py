@@ -18,7 +18,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from startracker.optics import Camera
-from startracker.rotations import as_float_array
+from startracker.validation import as_float_array
 
 __all__ = ["IdentifyOptions", "Frame", "prepare_frame", "ARCSEC"]
 

@@ -1,8 +1,9 @@
-"""The env's internal fast paths give exactly (bit for bit) what the public, validating functions give.
+"""The array kernels (``startracker.kernels``) against independent references, bit for bit where they promise it.
 
-Each ``_..._unchecked`` helper skips input checks and scipy's wrapper layers but repeats the same floating-point
-operations; these tests compare them with ``==`` on random inputs, including edge cases (zero scalar parts,
-negative signs, tiny and large angles, query times on the samples).
+The rotation kernels reproduce scipy's ``Rotation``/``Slerp`` arithmetic: compared with ``==`` against scipy itself
+(or against the checked functions that call scipy) on random inputs, including edge cases (zero scalar parts,
+negative signs, tiny and large angles, query times on the samples). The ``validate=False`` paths of the checked API
+are compared with their validating path.
 """
 
 import numpy as np
@@ -13,12 +14,10 @@ from startracker import rotations as rot
 from startracker.attitude import solve_wahba_batch
 from startracker.centroid import _candidate_pairs
 from startracker.optics import camera_preset
-from startracker.track import (
-    _prediction_covariance_fast,
-    _prediction_sigma_px_fast,
-    prediction_covariance,
-    prediction_sigma_px,
-)
+from scipy.spatial.transform import Rotation, Slerp
+
+from startracker.kernels import rotations as rk
+from startracker.track import prediction_covariance, prediction_sigma_px
 
 
 def _same(a, b):
@@ -34,41 +33,41 @@ def _random_quats(rng, n):
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_quaternion_fast_paths_equal_public_functions(seed):
+def test_quaternion_kernels_equal_public_functions(seed):
     rng = np.random.default_rng(seed)
     for _ in range(40):
         n = int(rng.integers(1, 25))
         q = _random_quats(rng, n)
         q2 = rot.quat_normalize(rng.normal(size=(n, 4)))
-        _same(rot._quat_normalize_unchecked(q), rot.quat_normalize(q))
-        _same(rot._quat_multiply_unchecked(q, q2), rot.quat_multiply(q, q2))
-        _same(rot._quat_multiply_unchecked(q[0], q2), rot.quat_multiply(q[0], q2))
-        _same(rot._quat_to_matrix_unchecked(q), rot.quat_to_matrix(q))
-        _same(rot._quat_angle_between_unchecked(q, q2), rot.quat_angle_between(q, q2))
+        _same(rk.quat_normalize(q), rot.quat_normalize(q))
+        _same(rk.quat_multiply(q, q2), rot.quat_multiply(q, q2))
+        _same(rk.quat_multiply(q[0], q2), rot.quat_multiply(q[0], q2))
+        np.testing.assert_allclose(rk.quat_to_matrix(q), Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix(), rtol=0, atol=1e-15)
+        _same(rk.quat_angle_between(q, q2), rot.quat_angle_between(q, q2))
         scale = 10 ** rng.uniform(-9, 0.6)  # both sides of scipy's small-angle branch (1e-3 rad)
         rv = rng.normal(size=(n, 3)) * scale
-        _same(rot._quat_from_rotvec_unchecked(rv), rot.quat_from_rotvec(rv))
-        _same(rot._quat_to_rotvec_unchecked(q), rot.quat_to_rotvec(q))
+        _same(rk.quat_from_rotvec(rv), rot.quat_from_rotvec(rv))
+        _same(rk.quat_to_rotvec(q), rot.quat_to_rotvec(q))
         small = rot.quat_normalize(q2 * [1.0, scale, scale, scale])
-        _same(rot._quat_to_rotvec_unchecked(small), rot.quat_to_rotvec(small))
+        _same(rk.quat_to_rotvec(small), rot.quat_to_rotvec(small))
         w, a, dt = rng.normal(size=3) * scale, rng.normal(size=3) * scale, rng.uniform(-0.1, 0.1, n)
-        _same(rot._quat_integrate_unchecked(q2[0], w, dt, a), rot.quat_integrate(q2[0], w, dt, a))
-        _same(rot._quat_integrate_unchecked(q2[0], w, dt), rot.quat_integrate(q2[0], w, dt))
+        _same(rk.quat_integrate(q2[0], w, dt, a), rot.quat_integrate(q2[0], w, dt, a))
+        _same(rk.quat_integrate(q2[0], w, dt), rot.quat_integrate(q2[0], w, dt))
         m = rot.quat_to_matrix(q2) @ rot.quat_to_matrix(rot.quat_normalize(rng.normal(size=4)))
-        _same(rot._quat_from_matrix_unchecked(m), rot.quat_from_matrix(m))
-        _same(rot._quat_from_matrix_unchecked(m[0]), rot.quat_from_matrix(m[0]))
+        _same(rk.quat_from_matrix(m), rot.quat_from_matrix(m))
+        _same(rk.quat_from_matrix(m[0]), rot.quat_from_matrix(m[0]))
 
 
-def test_matrix_fast_path_falls_back_for_matrices_scipy_repairs_or_rejects():
+def test_matrix_kernel_falls_back_for_matrices_scipy_repairs_or_rejects():
     rng = np.random.default_rng(9)
     m = rot.quat_to_matrix(rot.quat_random(rng, 5)) * (1 + 1e-6)  # not orthogonal: scipy orthogonalises by SVD
-    _same(rot._quat_from_matrix_unchecked(m), rot.quat_from_matrix(m))
+    _same(rk.quat_from_matrix(m), rot.quat_from_matrix(m))
     with pytest.raises(ValueError):
-        rot._quat_from_matrix_unchecked(-np.eye(3))  # a reflection, rejected like the public function does
+        rk.quat_from_matrix(-np.eye(3))  # a reflection, rejected like the public function does
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_interpolation_fast_path_equals_slerp(seed):
+def test_interpolation_kernel_equals_scipy_slerp(seed):
     rng = np.random.default_rng(100 + seed)
     for _ in range(40):
         s = int(rng.integers(2, 15))
@@ -78,21 +77,22 @@ def test_interpolation_fast_path_equals_slerp(seed):
         tq = rng.uniform(t[0], t[-1], int(rng.integers(1, 70)))
         tq[0], tq[-1] = t[0], t[-1]
         tq[len(tq) // 2] = t[s // 2]  # exactly on an interior sample
-        _same(rot._quat_interpolate_unchecked(t, q, tq), rot.quat_interpolate(t, q, tq))
-        _same(rot._quat_interpolate_fast(t, q, tq), rot.quat_interpolate(t, q, tq))
+        ref = rot.from_scipy(Slerp(t, rot.to_scipy(q))(tq))
+        _same(rk.quat_interpolate(t, q, tq), ref)
+        _same(rot.quat_interpolate(t, q, tq), ref)
         ts = float(rng.uniform(t[0], t[-1]))
-        _same(rot._quat_interpolate_unchecked(t, q, ts), rot.quat_interpolate(t, q, ts))
+        _same(rk.quat_interpolate(t, q, ts), rot.from_scipy(Slerp(t, rot.to_scipy(q))(ts)))
 
 
-def test_interpolation_fast_path_keeps_the_public_checks():
+def test_interpolation_checks_its_inputs():
     t = np.array([0.0, 1.0])
     q = np.array([[1.0, 0, 0, 0], [0.0, 1, 0, 0]])
     with pytest.raises(ValueError, match="t_query"):
-        rot._quat_interpolate_fast(t, q, 2.0)
+        rot.quat_interpolate(t, q, 2.0)
     with pytest.raises(ValueError, match="increasing"):
-        rot._quat_interpolate_fast(t[::-1], q, 0.5)
-    with pytest.raises(ValueError):
-        rot._quat_interpolate_fast(t, np.zeros((2, 4)), 0.5)
+        rot.quat_interpolate(t[::-1], q, 0.5)
+    with pytest.raises(ValueError, match="zero quaternion"):
+        rot.quat_interpolate(t, np.zeros((2, 4)), 0.5)
 
 
 def test_wahba_batch_unchanged_by_the_internal_split():
@@ -107,17 +107,18 @@ def test_wahba_batch_unchanged_by_the_internal_split():
     assert np.all(np.degrees(rot.quat_angle_between(q, q_true)) * 3600 < 1e-6)
 
 
-def test_prediction_covariance_fast_paths_equal_public_functions():
+def test_prediction_covariance_unvalidated_path_equals_validated_path():
     rng = np.random.default_rng(4)
     cam = camera_preset("paper000")
     for _ in range(20):
         a = rng.normal(size=(3, 3, 3)) * 1e-4
         p, pw, pa = (x @ x.T for x in a)
         dt = rng.uniform(-0.2, 0.2, 5)
-        _same(_prediction_covariance_fast(p, dt, pw, pa), prediction_covariance(p, dt, pw, pa))
-        assert _prediction_sigma_px_fast(cam, p, dt, pw, pa) == prediction_sigma_px(cam, p, dt, pw, pa)
-        # scalars take the checked path and still agree
-        assert _prediction_sigma_px_fast(cam, p, 0.1, 1e-8, 1e-6) == prediction_sigma_px(cam, p, 0.1, 1e-8, 1e-6)
+        _same(prediction_covariance(p, dt, pw, pa, validate=False), prediction_covariance(p, dt, pw, pa))
+        _same(prediction_covariance(p, dt, pw, pa), p + pw * dt[:, None, None] ** 2 + pa * dt[:, None, None] ** 4 / 4)
+        assert prediction_sigma_px(cam, p, dt, pw, pa, validate=False) == prediction_sigma_px(cam, p, dt, pw, pa)
+        # scalars (isotropic variances) are converted either way
+        assert prediction_sigma_px(cam, p, 0.1, 1e-8, 1e-6, validate=False) == prediction_sigma_px(cam, p, 0.1, 1e-8, 1e-6)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -168,10 +169,9 @@ def test_count_wrong_bounds_decide_like_the_eigensolver():
     assert av._count_wrong(samples, np.zeros(len(samples)), times, quats) == expected
 
 
-def test_scene_projection_fast_paths_equal_camera_project_and_einsum():
+def test_projection_kernel_equals_the_pinhole_model():
     from startracker.color import ColorCamera
     from startracker.optics import CAMERA_PRESETS
-    from startracker.scene import _project_unchecked, _rotate_rows_transposed
 
     rng = np.random.default_rng(6)
     cams = [camera_preset(name) for name in CAMERA_PRESETS]
@@ -180,9 +180,13 @@ def test_scene_projection_fast_paths_equal_camera_project_and_einsum():
         v = rng.normal(size=(400, 3))
         v[:, 2] = np.abs(v[:, 2]) * rng.choice([5.0, -1.0, 1e-14], size=400)  # in front, behind, grazing
         xy, _, front = cam.project(v, return_in_front=True)
-        xy_f, front_f = _project_unchecked(cam, v)
+        xy_f, _, front_f = cam.project(v, return_in_front=True, validate=False)
         _same(xy_f, xy)
         _same(front_f, front)
-    r = rot.quat_to_matrix(rot.quat_random(rng, 30))
-    vv = rng.normal(size=(45, 3))
-    _same(_rotate_rows_transposed(r, vv), np.einsum("tji,kj->tki", r, vv))
+        # the model itself: x = cx + (f/p) X/Z (1 + k1 r²), r the ideal focal-plane radius in mm (paper 004 eq. 3)
+        ok = front & (type(cam).project is type(camera_preset("paper000")).project)
+        if ok.any():
+            xm = cam.focal_length_mm * v[ok, :2] / v[ok, 2:3]
+            r2 = np.sum(xm**2, axis=1, keepdims=True)
+            ref = xm * (1 + cam.distortion_k1_per_mm2 * r2) / cam.pixel_size_mm + np.asarray(cam.principal_point)
+            np.testing.assert_allclose(xy[ok], ref, rtol=1e-12, atol=1e-9)

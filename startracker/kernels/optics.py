@@ -1,0 +1,42 @@
+"""Camera kernels: the pinhole projection with first-order radial distortion, float64 arrays, no checks.
+
+The checked API is :meth:`startracker.optics.Camera.project` (conventions: camera +z is the boresight, pixel
+``(0, 0)`` the centre of the top-left pixel, distortion as in paper 004 eq. 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["project_pinhole"]
+
+
+def project_pinhole(v: np.ndarray, focal_length_mm: float, k1_per_mm2: float, pixel_size_mm: float,
+                    principal_point_px: np.ndarray):
+    """Project camera-frame directions to distorted pixel coordinates.
+
+    Parameters
+    ----------
+    v : ndarray, shape (K, 3)
+        Non-zero directions in the camera frame, any norm.
+    focal_length_mm, k1_per_mm2, pixel_size_mm : float
+        Focal length (mm), first-order radial distortion coefficient (1/mm²), pixel pitch (mm).
+    principal_point_px : ndarray, shape (2,)
+        (column, row) of the principal point, px.
+
+    Returns
+    -------
+    xy : ndarray, shape (K, 2)
+        (column, row), px; finite but meaningless where ``in_front`` is False.
+    in_front : ndarray of bool, shape (K,)
+        Z > 0 (relative to the vector's norm).
+    """
+    z = v[:, 2]
+    in_front = z > 1e-12 * np.sqrt(np.add.reduce(v * v, axis=1))
+    z_safe = np.where(in_front, z, 1.0)
+    xy = np.empty((len(v), 2))
+    xy[:, 0] = focal_length_mm * v[:, 0] / z_safe
+    xy[:, 1] = focal_length_mm * v[:, 1] / z_safe
+    if k1_per_mm2 != 0.0:  # k1 = 0: the factor is exactly 1
+        xy = xy * (1.0 + k1_per_mm2 * np.add.reduce(xy**2, axis=-1, keepdims=True))
+    return xy / pixel_size_mm + principal_point_px, in_front

@@ -1,6 +1,6 @@
 """Every public entry point refuses malformed input with a ValueError/TypeError that names the argument.
 
-The table below is also the README's table of what is checked.
+The table below is also the table of what is checked in docs/reliability.md.
 """
 
 import numpy as np

@@ -40,11 +40,10 @@ def run_one(kind, severity, seed, task):
     faults = [] if kind == "none" else [dict(kind=kind, t_start_s=T0, duration_s=DUR, severity=severity)]
     kwargs = dict(faults=faults, max_episode_s=T0 + DUR + AFTER)
     env = gym.make(task, **kwargs)
-    env.reset(seed=seed, options={"slew_angle_deg": 60.0} if "Slew" in task else None)
+    obs, _ = env.reset(seed=seed, options={"slew_angle_deg": 60.0} if "Slew" in task else None)
     from policies import EigenaxisSlewPolicy, ZeroPolicy
 
     pol = (EigenaxisSlewPolicy if "Slew" in task else ZeroPolicy).from_env(env)
-    obs = env.unwrapped._observation()
     rows = []
     done = False
     while not done:

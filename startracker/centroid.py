@@ -43,6 +43,7 @@ from scipy.spatial import cKDTree
 from scipy.special import erf, ndtr
 
 from startracker.imaging import (
+    COSMIC_SIGMA_PX,
     KIND_COSMIC_RAY,
     KIND_DEBRIS,
     KIND_HOT_PIXEL,
@@ -50,9 +51,8 @@ from startracker.imaging import (
     KIND_STAR,
     FalseObjects,
     SensorModel,
-    _COSMIC_SIGMA_PX,
-    _false_pixels,
     background_field,
+    draw_false_pixels,
     draw_false_objects,
     fixed_pattern,
     render_sparse,
@@ -700,7 +700,7 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
         inside = (cxy[:, 0] >= -0.5) & (cxy[:, 0] <= n_cols - 0.5) & (cxy[:, 1] >= -0.5) & (cxy[:, 1] <= n_rows - 0.5)
         cxy, cd, clen, ce = cxy[inside], cd[inside], clen[inside], fo.cosmic_e[inside]
         cvb = (bg.var_e(cxy[:, 0], cxy[:, 1]) / g_dn**2 + 1.0 / 12.0) * g_dn**2
-        cres = _spot_theory(ce, 1.0, 1.0, np.full(len(ce), _COSMIC_SIGMA_PX), np.full(len(ce), _COSMIC_SIGMA_PX), 1.0,
+        cres = _spot_theory(ce, 1.0, 1.0, np.full(len(ce), COSMIC_SIGMA_PX), np.full(len(ce), COSMIC_SIGMA_PX), 1.0,
                             clen, cvb, k_sigma * np.sqrt(cvb), err, False)
         xy = np.concatenate([xy, cxy])
         d = np.concatenate([d, cd])
@@ -727,7 +727,7 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
     # spots whose threshold regions touch are one component in the pixel path: merge them
     if len(idx) > 1:
         # expected threshold radius (without the detection calibration factor) plus half the streak
-        se2 = np.where(kind == KIND_COSMIC_RAY, _COSMIC_SIGMA_PX**2, model.sigma_px**2) + 1.0 / 12.0
+        se2 = np.where(kind == KIND_COSMIC_RAY, COSMIC_SIGMA_PX**2, model.sigma_px**2) + 1.0 / 12.0
         r_exp = np.sqrt(2.0 * se2 * np.log(np.maximum(peak_e / (k_sigma * np.sqrt(var_bd)), 1.0)))
         reach = r_exp + 0.5 * length[idx]
         pairs = _candidate_pairs(truth_xy, 2.0 * float(reach.max()) + 1e-9)
@@ -778,7 +778,7 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
                 hxy = np.column_stack([hc[hit], hr[hit]]).astype(float)
                 _append_singletons(parts, hxy, dn[hit] - mean_dn0[hit] if np.ndim(mean_dn0) else dn[hit] - mean_dn0,
                                    dn[hit] >= model.saturation_dn, sd_dn0[hit] if np.ndim(sd_dn0) else sd_dn0, KIND_HOT_PIXEL)
-        f_lin, f_dn = _false_pixels(bg, k_sigma, n_cols, n_rows, model, rng)
+        f_lin, f_dn = draw_false_pixels(bg, k_sigma, n_cols, n_rows, model, rng)
         if len(f_lin):
             fr, fc = np.divmod(f_lin, n_cols)
             fxy = np.stack([fc, fr], 1).astype(float)

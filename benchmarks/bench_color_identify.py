@@ -39,7 +39,7 @@ from startracker.color import (  # noqa: E402
     paper004_sensor_model,
     render_color_frame,
 )
-from startracker.color_identify import build_color_database, identify_color  # noqa: E402
+from startracker.color import build_color_database, identify_color  # noqa: E402
 from startracker.identify import identify  # noqa: E402
 from startracker.identify.simulation import score_result, simulate_frame  # noqa: E402
 from startracker.rotations import quat_random  # noqa: E402

@@ -298,7 +298,7 @@ def test_fusion_bad_input():
 
 
 # ------------------------------------------------------------------------ colour-aided identification
-from startracker.color_identify import build_color_database, identify_color  # noqa: E402
+from startracker.color import build_color_database, identify_color  # noqa: E402
 from startracker.identify import identify  # noqa: E402
 from startracker.identify.simulation import simulate_frame  # noqa: E402
 

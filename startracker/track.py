@@ -32,6 +32,9 @@ attitude, rate and acceleration uncertainty propagated to the exposure instant (
 the observed-minus-predicted offset is a 2-D Gaussian of per-axis σ = √(σ_c² + σ_pred²), whose norm is
 Rayleigh distributed: ``P(|e| > kσ) = exp(-k²/2)``. The radius is ``r = k σ`` with k = 6 (a true spot is
 missed with probability 1.5e-8), clipped to ``[r_min, r_max]``.
+
+The module is over 600 lines because prediction, matching and grouping are the three steps of one
+tracking pass and share their unchecked fast paths.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ rendered per channel, centroided per channel, fused at centroid level and at ima
 registration calibrated on simulated rotary-table data; centroid errors against the truth on the stars
 all methods detect, false detections, and the measured colour ratio against the catalog's.
 
-Part B (identification): the same synthetic detection lists (identify.simulation.simulate_frame on the green
+Part B (identification): the same synthetic detection lists (simulation.simulate_identification_frame on the green
 camera, V <= 6.0) identified by the monochrome pyramid and voting methods and by the colour-aided pyramid
 (colour ratio measured with 0.1 noise in ln(red/blue)); correct / wrong / failed, median latency over repeated
 runs, hypotheses verified and the fraction of pair candidates the colour keeps.
@@ -39,9 +39,9 @@ from startracker.color import (  # noqa: E402
     paper004_sensor_model,
     render_color_frame,
 )
-from startracker.color_identify import build_color_database, identify_color  # noqa: E402
+from startracker.color import build_color_database, identify_color  # noqa: E402
 from startracker.identify import identify  # noqa: E402
-from startracker.identify.simulation import score_result, simulate_frame  # noqa: E402
+from startracker.simulation import score_result, simulate_identification_frame  # noqa: E402
 from startracker.rotations import quat_random  # noqa: E402
 from startracker.scene import ExposurePlan  # noqa: E402
 
@@ -163,7 +163,7 @@ def part_b(n_frames: int, rng, repeats: int):
     for label, scen in SCENARIOS:
         frames = []
         for _ in range(n_frames):
-            f = simulate_frame(cat, cam, quat_random(rng), rng, **scen)
+            f = simulate_identification_frame(cat, cam, quat_random(rng), rng, **scen)
             cr = np.array([ratio_of.get(h, np.nan) if h >= 0 else rng.choice(cdb.star_ratio) for h in f.hip])
             frames.append((f, cr + rng.normal(0, COLOR_SIGMA, len(cr))))
         sp = scen["sigma_px"]
@@ -203,7 +203,7 @@ def part_b(n_frames: int, rng, repeats: int):
                   f"{np.median(lat):.2f} | {np.percentile(lat, 90):.2f} | {hyp.mean():.1f} | {kept_s} | "
                   f"{ref / np.median(lat):.2f}× |")
     print("\n'wrong' = attitude off by more than 600″ or a true star given another star's HIP "
-          "(identify.simulation.score_result). Latency: fastest of the repeats per frame, median over frames.")
+          "(simulation.score_result). Latency: fastest of the repeats per frame, median over frames.")
 
 
 def main():

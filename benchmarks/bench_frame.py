@@ -61,7 +61,7 @@ def naive_path(scene, model, rng, expected):
     """Full-frame Poisson + Gaussian noise, quantisation, threshold, label, center_of_mass over the frame.
 
     The Poisson field is drawn in units of ``g_eff = G F² c`` electrons (the per-pixel variance of light
-    through the intensifier, see imaging.py), so the pixel statistics match the model's.
+    through the intensifier, see startracker/imaging), so the pixel statistics match the model's.
     """
     g_eff = max(model.intensifier_gain * model.excess_noise_factor**2 * model.splash_energy, 1.0)
     e = g_eff * rng.poisson(expected / g_eff) + rng.normal(0.0, model.read_noise_e, expected.shape)

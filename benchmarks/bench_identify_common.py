@@ -1,6 +1,6 @@
 """Helpers shared by the ``bench_identify_*.py`` scripts (not a benchmark itself).
 
-``run_method`` identifies a list of synthetic frames (``startracker.identify.simulation``) with one
+``run_method`` identifies a list of synthetic frames (``startracker.simulation``) with one
 method and scores every result against the truth: correct, ID failure (no answer), bad match (an answer
 with a wrong attitude or a true star mislabelled). Latency is the result's ``latency_ms`` (wall clock);
 the identification thread's CPU time is recorded beside it, because the benchmark machine is shared and
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from startracker.identify import identify
-from startracker.identify.simulation import false_labels, score_result
+from startracker.simulation import count_false_labels, score_result
 
 try:
     from tqdm import tqdm
@@ -62,7 +62,7 @@ def run_method(method, frames, cam, cat, db, desc=None, **options) -> MethodRun:
         s = score_result(r, f)
         if s == "correct":
             correct += 1
-            fl += false_labels(r, f)
+            fl += count_false_labels(r, f)
         elif s == "fail":
             fail += 1
             statuses[r.status] = statuses.get(r.status, 0) + 1

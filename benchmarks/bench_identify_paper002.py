@@ -26,7 +26,7 @@ import numpy as np
 from bench_identify_common import machine_line, print_table, run_method, tqdm
 from startracker.catalog import load_catalog
 from startracker.identify import build_database
-from startracker.identify.simulation import simulate_frame
+from startracker.simulation import simulate_identification_frame
 from startracker.optics import camera_preset
 from startracker.rotations import quat_random
 
@@ -44,8 +44,8 @@ def make_frames(cat, cam, n, n_false, min_stars, sigma_px, rng):
     frames = []
     bar = tqdm(total=n, desc=f"frames ({n_false} false, >= {min_stars})", leave=False, mininterval=1.0)
     while len(frames) < n:
-        f = simulate_frame(cat, cam, quat_random(rng), rng, sigma_px=sigma_px, mag_sigma=0.2, n_false=n_false,
-                           false_among=10, max_stars=10)
+        f = simulate_identification_frame(cat, cam, quat_random(rng), rng, sigma_px=sigma_px, mag_sigma=0.2,
+                                          n_false=n_false, false_among=10, max_stars=10)
         if len(f.xy) < min_stars or f.n_true < 3 or (n_false and f.n_true == len(f.xy)):
             continue
         frames.append(f)

@@ -28,7 +28,7 @@ import numpy as np
 from bench_identify_common import machine_line, print_table, run_method
 from startracker.catalog import load_catalog, select_navigation_stars
 from startracker.identify import build_database
-from startracker.identify.simulation import simulate_frame
+from startracker.simulation import simulate_identification_frame
 from startracker.optics import camera_preset
 from startracker.rotations import quat_random
 
@@ -76,7 +76,8 @@ def main():
         sigma_opt = max(noise, 0.25)  # the tolerance a tracker would set for its known centroid noise
         for name, (db, sky) in confs.items():
             frng = np.random.default_rng([args.seed, int(noise * 100)])
-            frames = [simulate_frame(sky, cam, q, frng, sigma_px=noise, mag_sigma=1.0) for q in attitudes]
+            frames = [simulate_identification_frame(sky, cam, q, frng, sigma_px=noise, mag_sigma=1.0)
+                      for q in attitudes]
             frames = [f for f in frames if len(f.xy) >= 3]
             s = run_method("string", frames, cam, sky, db, desc=f"{name} {noise} px: string", sigma_px=sigma_opt, mag_sigma=1.0)
             p = run_method("pyramid", frames, cam, sky, db, desc=f"{name} {noise} px: pyramid", sigma_px=sigma_opt)

@@ -26,7 +26,7 @@ import numpy as np
 from bench_identify_common import machine_line, print_table, run_method
 from startracker.catalog import load_catalog
 from startracker.identify import build_database
-from startracker.identify.simulation import simulate_frame
+from startracker.simulation import simulate_identification_frame
 from startracker.optics import camera_preset
 from startracker.rotations import quat_random
 
@@ -67,8 +67,8 @@ def main():
     cells = []
     for n_false in FALSE_STARS:
         frng = np.random.default_rng([args.seed, n_false])
-        frames = [simulate_frame(cat, cam, q, frng, sigma_px=0.5, mag_sigma=0.2, n_false=n_false, false_among=30,
-                                 max_stars=30) for q in attitudes]
+        frames = [simulate_identification_frame(cat, cam, q, frng, sigma_px=0.5, mag_sigma=0.2, n_false=n_false,
+                                                false_among=30, max_stars=30) for q in attitudes]
         runs = {m: run_method(m, frames, cam, cat, db, desc=f"{n_false} false: {m}", sigma_px=0.5) for m in METHODS}
         cells.append((f"{n_false} false / 30", runs))
     table("## False stars among the 30 brightest (0.5 px noise)", cells)
@@ -76,7 +76,7 @@ def main():
     cells = []
     for noise in NOISE_PX:
         frng = np.random.default_rng([args.seed, 1000 + int(noise * 10)])
-        frames = [simulate_frame(cat, cam, q, frng, sigma_px=noise, mag_sigma=0.2) for q in attitudes]
+        frames = [simulate_identification_frame(cat, cam, q, frng, sigma_px=noise, mag_sigma=0.2) for q in attitudes]
         runs = {m: run_method(m, frames, cam, cat, db, desc=f"{noise} px: {m}", sigma_px=noise) for m in METHODS}
         cells.append((f"{noise} px", runs))
     table("## Centroid noise (all detections, no false star)", cells)

@@ -25,7 +25,7 @@ import numpy as np
 from bench_identify_common import machine_line, print_table, run_method
 from startracker.catalog import load_catalog
 from startracker.identify import build_database
-from startracker.identify.simulation import simulate_frame
+from startracker.simulation import simulate_identification_frame
 from startracker.optics import camera_preset
 from startracker.rotations import quat_random
 
@@ -52,7 +52,7 @@ def main():
     rows = []
     for case, n_false in (("no false stars", 0), ("5 false among 30", 5)):
         frng = np.random.default_rng([args.seed, n_false])
-        frames = [simulate_frame(cat, cam, q, frng, sigma_px=0.5, mag_sigma=0.2, n_false=n_false,
+        frames = [simulate_identification_frame(cat, cam, q, frng, sigma_px=0.5, mag_sigma=0.2, n_false=n_false,
                                  false_among=30 if n_false else None, max_stars=30 if n_false else None)
                   for q in quat_random(rng, n)]
         runs = {m: run_method(m, frames, cam, cat, db, desc=f"{case}: {m}", sigma_px=0.5) for m in ("pyramid", "brightness")}

@@ -43,10 +43,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from startracker.catalog import load_catalog, select_navigation_stars  # noqa: E402
 from startracker.imu import Gyro, gyro_preset  # noqa: E402
-from startracker.ins_error import attitude_sigma_bound_rad, propagate_attitude_error  # noqa: E402
-from startracker.local_catalog import los_bias_angles  # noqa: E402
+from startracker.multifov.ins_error import attitude_sigma_bound_rad, propagate_attitude_error  # noqa: E402
+from startracker.multifov.local_catalog import los_bias_angles  # noqa: E402
 from startracker.multifov import MultiFovSensor, paper001_head  # noqa: E402
-from startracker.multifov_matcher import InertialAidedMatcher  # noqa: E402
+from startracker.multifov.matcher import InertialAidedMatcher  # noqa: E402
 from startracker.optics import camera_preset  # noqa: E402
 from startracker.rotations import (  # noqa: E402
     quat_angle_between,

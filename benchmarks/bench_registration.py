@@ -21,7 +21,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from startracker.color import ColorCamera, calibrate_registration, generate_rotary_table_data  # noqa: E402
-from startracker.registration import registration_rmse  # noqa: E402
+from startracker.color.registration import registration_rmse  # noqa: E402
 
 PAPER_T2 = {"red": (0.9976, 0.07, 0.3, 0.5), "blue": (1.0020, -0.05, -0.4, -0.6)}
 PAPER_T3 = {"red": (0.9973, 0.0698, 0.3012, 0.5024), "blue": (1.0018, -0.0501, -0.4032, -0.5986)}

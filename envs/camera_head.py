@@ -89,7 +89,7 @@ class ColorHead:
 
     def __init__(self, camera_name: str = "paper004_3cmos"):
         from startracker.color import ColorCamera, paper004_sensor_model
-        from startracker.registration import ColorRegistration, generate_rotary_table_data
+        from startracker.color.registration import ColorRegistration, generate_rotary_table_data
 
         self.camera_name = camera_name
         self.color_camera = ColorCamera.paper004(translation="table2")

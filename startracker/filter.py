@@ -39,6 +39,9 @@ Numerical note: the batch path calls LAPACK on 3N x 3N matrices; with a multi-th
 busy machine, set ``OPENBLAS_NUM_THREADS=1`` (thread hand-off costs more than these small solves).
 
 The multiplicative reset's covariance correction (second order in δθ) is neglected, as usual.
+
+The module is over 600 lines because the sequential and the batch update are two paths of one filter
+(:class:`AttitudeEKF`) that must agree, and are kept side by side.
 """
 
 from __future__ import annotations

@@ -22,6 +22,9 @@ pinhole motion field over a grid of detector points (a roll about the boresight 
 so large roll rates push N down). Paper 000's camera (f = 5807 px) at 20°/s with 10 Hz frames,
 τ = 1 ms and σ = 1.2 px gives ``v = 2027 px/s`` and ``N = floor(21.97) = 21``: a 210 Hz update rate,
 the figure of paper 000 §1 (and §5: N goes from 1 to 21 as the rate goes from 0 to 20°/s).
+
+The module is over 600 lines because the exposure plan, the bright bodies and the scene are the one
+record of a frame's truth that every later room reads, and they are kept together.
 """
 
 from __future__ import annotations

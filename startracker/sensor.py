@@ -38,6 +38,9 @@ Motion state after a tracked frame: the last solved instant's attitude and covar
 from a least-squares line through the instants' rotation vectors (or the gyro, or the rotation between
 two frames for N = 1); the angular acceleration from the change of rate between frames (or between gyro
 readings).
+
+The module is over 600 lines because it is one state machine (:class:`StarTracker`): its modes share the
+motion state and the attempt bookkeeping, which a split would have to pass between files.
 """
 
 from __future__ import annotations

@@ -32,6 +32,9 @@ attitude, rate and acceleration uncertainty propagated to the exposure instant (
 the observed-minus-predicted offset is a 2-D Gaussian of per-axis σ = √(σ_c² + σ_pred²), whose norm is
 Rayleigh distributed: ``P(|e| > kσ) = exp(-k²/2)``. The radius is ``r = k σ`` with k = 6 (a true spot is
 missed with probability 1.5e-8), clipped to ``[r_min, r_max]``.
+
+The module is over 600 lines because prediction, matching and grouping are the three steps of one
+tracking pass and share their unchecked fast paths.
 """
 
 from __future__ import annotations
@@ -61,8 +64,6 @@ __all__ = [
     "prediction_radius_px",
     "InstantAttitudes",
     "attitudes_per_instant",
-    "SyntheticFrame",
-    "synthetic_frame",
 ]
 
 MATCH_METHODS = ("dkvlut", "brute", "kdtree")
@@ -743,101 +744,3 @@ def _solve_instants(obs, idx, prediction, camera, catalog, sigma_px, min_stars, 
     cov = np.where(ok[:, None, None], cov, np.inf)
     rms = np.where(ok, rms, np.inf)
     return InstantAttitudes(prediction.times_s.copy(), q, cov, rms, n_used, ok, assign, n_out)
-
-
-# --------------------------------------------------------------------------- synthetic test frames
-@dataclass(frozen=True)
-class SyntheticFrame:
-    """Detections of one (multi-)exposure frame built straight from the catalog (no pixels).
-
-    Attributes
-    ----------
-    xy : ndarray, shape (K, 2)
-        Detections in scan order (row, then column), px.
-    intensity : ndarray, shape (K,)
-        Relative spot brightness (∝ 10^(-0.4 V) / N for stars).
-    star_index : ndarray of int, shape (K,)
-        Catalog row, -1 for false objects.
-    instant : ndarray of int, shape (K,)
-        Exposure instant, -1 for false objects.
-    exposure_times_s : ndarray, shape (N,)
-    q_body_to_icrs : ndarray, shape (N, 4)
-        True body attitude at each instant.
-    xy_true : ndarray, shape (K, 2)
-        Noise-free positions (false objects: their drawn positions).
-    """
-
-    xy: np.ndarray
-    intensity: np.ndarray
-    star_index: np.ndarray
-    instant: np.ndarray
-    exposure_times_s: np.ndarray
-    q_body_to_icrs: np.ndarray
-    xy_true: np.ndarray
-
-
-def synthetic_frame(
-    camera: Camera,
-    catalog: StarCatalog,
-    q_body_to_icrs,
-    omega_body,
-    exposure_times_s,
-    rng: np.random.Generator,
-    t_ref_s: float = 0.0,
-    alpha_body=None,
-    sigma_px: float = 0.0,
-    n_false: int = 0,
-    p_detect: float = 1.0,
-) -> SyntheticFrame:
-    """Truth detections of a multi-exposure frame during a slew, for tests and benchmarks.
-
-    Stars of ``catalog`` are projected at each exposure instant of the attitude trajectory
-    ``q(t) = quat_integrate(q_body_to_icrs, omega_body, t - t_ref_s, alpha_body)``; each spot on the detector
-    is kept with probability ``p_detect``, gets Gaussian noise of ``sigma_px`` per axis, and ``n_false``
-    false objects are drawn uniformly over the detector. Detections come out in scan order.
-
-    Parameters
-    ----------
-    camera, catalog
-    q_body_to_icrs : array_like, shape (4,)
-        True attitude at ``t_ref_s``.
-    omega_body : array_like, shape (3,)
-        True body rate, rad/s.
-    exposure_times_s : array_like, shape (N,)
-    rng : numpy.random.Generator
-    t_ref_s : float
-    alpha_body : array_like, shape (3,), optional
-        True angular acceleration, rad/s².
-    sigma_px : float
-        Centroid noise, px (1σ per axis).
-    n_false : int
-        False objects.
-    p_detect : float
-        Detection probability of a star spot.
-
-    Returns
-    -------
-    SyntheticFrame
-    """
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError("rng must be a numpy.random.Generator")
-    if sigma_px < 0 or n_false < 0 or not (0.0 <= p_detect <= 1.0):
-        raise ValueError("sigma_px and n_false must be >= 0 and p_detect in [0, 1]")
-    pred = predict_star_positions(camera, catalog, q_body_to_icrs, exposure_times_s, t_ref_s, omega_body, alpha_body)
-    n_t = len(pred.times_s)
-    keep = rng.random(len(pred)) < p_detect
-    xy_true = pred.xy[keep]
-    star = pred.star_index[keep]
-    inst = pred.instant[keep]
-    xy = xy_true + rng.normal(0.0, sigma_px, xy_true.shape) if sigma_px > 0 else xy_true.copy()
-    inten = 1e3 * 10 ** (-0.4 * (catalog.vmag[star] - 6.0)) / n_t
-    w, h = camera.resolution
-    fxy = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (int(n_false), 2))
-    fint = 1e3 * 10 ** (-0.4 * rng.uniform(3.0, 7.0, int(n_false))) / n_t
-    xy = np.concatenate([xy, fxy])
-    xy_true = np.concatenate([xy_true, fxy])
-    inten = np.concatenate([inten, fint])
-    star = np.concatenate([star, np.full(int(n_false), -1)])
-    inst = np.concatenate([inst, np.full(int(n_false), -1)])
-    o = np.lexsort((xy[:, 0], np.floor(xy[:, 1])))
-    return SyntheticFrame(xy[o], inten[o], star[o], inst[o], pred.times_s, pred.q_body_to_icrs, xy_true[o])

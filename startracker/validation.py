@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-__all__ = ["as_float_array", "check_positive", "check_int", "check_choice", "check_rng"]
+__all__ = ["as_float_array", "check_positive", "check_real", "check_int", "check_choice", "check_rng"]
 
 
 def as_float_array(a, name: str, last_dim: int | None = None, ndim: int | None = None) -> np.ndarray:
@@ -66,6 +66,22 @@ def check_positive(value, name: str, allow_zero: bool = False) -> float:
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
         bound = ">= 0" if allow_zero else "> 0"
         raise ValueError(f"{name} must be finite and {bound}, got {value!r}")
+    return v
+
+
+def check_real(value, name: str, lo=None, hi=None, lo_open: bool = False, integer: bool = False) -> float:
+    """``value`` as a finite float within ``[lo, hi]`` (``(lo, hi]`` if ``lo_open``); TypeError/ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    if integer and int(value) != value:
+        raise ValueError(f"{name} must be an integer, got {value}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {value}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise ValueError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {value}")
+    if hi is not None and v > hi:
+        raise ValueError(f"{name} must be <= {hi}, got {value}")
     return v
 
 

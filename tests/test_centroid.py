@@ -316,14 +316,14 @@ def test_calibration_fits_a_new_detector():
     cam = camera_preset("paper000")
     plan = ExposurePlan(1, 0.02)
     rng = np.random.default_rng(1)
-    from startracker.centroid import _grid_scene
+    from startracker.centroid.fidelity import grid_scene
 
     acc = {}
     bins = [(6.0, 7.5), (7.5, 8.5), (8.5, 9.5)]
     for fid in ("pixel", "centroid"):
         acc[fid] = BinStats(bins)
         for i in range(3):
-            sc = _grid_scene(cam, plan, 6.0, 9.5, 100.0, 64.0, np.random.default_rng(100 + i))
+            sc = grid_scene(cam, plan, 6.0, 9.5, 100.0, 64.0, np.random.default_rng(100 + i))
             acc[fid].add(simulate_detections(sc, model, rng, fid, error_model=em), sc)
     p, c = acc["pixel"], acc["centroid"]
     np.testing.assert_allclose(c.p_det, p.p_det, atol=0.08)

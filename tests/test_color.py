@@ -298,9 +298,9 @@ def test_fusion_bad_input():
 
 
 # ------------------------------------------------------------------------ colour-aided identification
-from startracker.color_identify import build_color_database, identify_color  # noqa: E402
+from startracker.color import build_color_database, identify_color  # noqa: E402
 from startracker.identify import identify  # noqa: E402
-from startracker.identify.simulation import simulate_frame  # noqa: E402
+from startracker.simulation import simulate_identification_frame  # noqa: E402
 
 
 def test_color_identification_at_least_as_accurate_as_monochrome():
@@ -316,7 +316,7 @@ def test_color_identification_at_least_as_accurate_as_monochrome():
     kept = []
     for scen in (dict(sigma_px=0.5, n_false=2), dict(sigma_px=1.0, max_stars=5)):
         for _ in range(25):
-            f = simulate_frame(cat, cam, quat_random(rng), rng, **scen)
+            f = simulate_identification_frame(cat, cam, quat_random(rng), rng, **scen)
             cr = np.array([ratio_of.get(h, np.nan) if h >= 0 else rng.choice(cdb.star_ratio) for h in f.hip])
             cr = cr + rng.normal(0, 0.1, len(cr))
             mono = identify(f.xy, cam, cat, "pyramid", f.intensities, database=cdb.db, sigma_px=scen["sigma_px"])

@@ -13,7 +13,7 @@ from startracker.identify import build_database
 from startracker.identify.frame import IdentifyOptions, prepare_frame
 from startracker.identify.pattern_string import roll_inliers
 from startracker.identify.pyramid import PairCandidates, smart_triads, triangles
-from startracker.identify.simulation import simulate_frame
+from startracker.simulation import simulate_identification_frame
 from startracker.identify.verification import (
     Match,
     _binom_tail,
@@ -57,7 +57,8 @@ def test_wrong_triangle_rate_matches_the_catalog():
     rng = np.random.default_rng(7)
     lam, count = [], []
     for _ in range(150):
-        f = simulate_frame(cat, cam, quat_random(rng), rng, sigma_px=0.5, n_false=3, false_mag_range=(-5, -4))
+        f = simulate_identification_frame(cat, cam, quat_random(rng), rng, sigma_px=0.5, n_false=3,
+                                          false_mag_range=(-5, -4))
         fr = prepare_frame(f.xy, cam, f.intensities, opts)
         i, j, k = 0, 1, 2  # the three false stars are the brightest
         assert np.all(f.hip[fr.index[:3]] == -1)
@@ -147,14 +148,14 @@ def test_a_systematic_misfit_is_refused(monkeypatch):
     correctly."""
     from startracker.identify import identify
     from startracker.identify import verification
-    from startracker.identify.simulation import score_result
+    from startracker.simulation import score_result
     from startracker.optics import Camera
 
     cat = load_catalog(6.0)
     cam = camera_preset("paper000")
     longer = Camera(resolution=(2048, 2048), pixel_size_um=5.5, focal_length_mm=31.94 * 1.001)
     rng = np.random.default_rng(3)
-    frames = [simulate_frame(cat, longer, quat_random(rng), rng, sigma_px=0.2) for _ in range(12)]
+    frames = [simulate_identification_frame(cat, longer, quat_random(rng), rng, sigma_px=0.2) for _ in range(12)]
     for f in frames:
         assert not identify(f.xy, cam, cat, sigma_px=0.2).success
         assert score_result(identify(f.xy, cam, cat, sigma_px=2.0), f) == "correct"

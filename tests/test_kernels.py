@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from startracker import rotations as rot
 from startracker.attitude import solve_wahba_batch
-from startracker.centroid import _candidate_pairs
+from startracker.centroid.fidelity import candidate_pairs
 from startracker.optics import camera_preset
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -137,7 +137,7 @@ def test_sweep_pairs_leave_the_same_set_as_the_kdtree(seed):
         return {tuple(p) for p in np.sort(pairs[ok], axis=1).tolist()}
 
     ref = cKDTree(xy).query_pairs(r, output_type="ndarray")
-    sweep = _candidate_pairs(xy, r)
+    sweep = candidate_pairs(xy, r)
     assert np.all(sweep[:, 0] < sweep[:, 1])
     assert kept(sweep) == kept(ref)
 

@@ -8,10 +8,10 @@ import pytest
 from startracker.catalog import load_catalog, select_navigation_stars
 from startracker.identify.result import IdentificationResult
 from startracker.imu import GyroSpec, gyro_preset
-from startracker.ins_error import attitude_sigma_bound_rad, propagate_attitude_error
-from startracker.local_catalog import LocalCatalog, ObservedScope, los_bias_angles, predict_scopes
+from startracker.multifov.ins_error import attitude_sigma_bound_rad, propagate_attitude_error
+from startracker.multifov.local_catalog import LocalCatalog, ObservedScope, los_bias_angles, predict_scopes
 from startracker.multifov import MultiFovSensor, installation_quaternions, paper001_head
-from startracker.multifov_matcher import InertialAidedMatcher, MultiFovResult
+from startracker.multifov.matcher import InertialAidedMatcher, MultiFovResult
 from startracker.optics import Camera
 from startracker.rotations import (
     quat_angle_between,

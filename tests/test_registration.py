@@ -5,7 +5,7 @@ import pytest
 
 from startracker.color import ColorCamera
 from startracker.optics import Camera
-from startracker.registration import (
+from startracker.color.registration import (
     RegistrationParams,
     calibrate_registration,
     generate_rotary_table_data,

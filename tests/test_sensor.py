@@ -15,7 +15,7 @@ from startracker.rotations import (
     quat_to_rotvec,
 )
 from startracker.sensor import AttitudeSample, FrameResult, MotionState, StarTracker
-from startracker.track import synthetic_frame
+from startracker.simulation import simulate_tracking_frame
 
 FRAME_S = 0.1
 SIGMA_PX = 0.3
@@ -52,7 +52,7 @@ def frame(cam, nav, slew, k, n, rng, n_false=10, p_detect=0.95, frame_s=FRAME_S,
     """Frame k (from k·T to (k+1)·T) with n exposures spread over it, mid-exposure stamps; the frame time
     (and gyro reading) at its end or its start."""
     times = k * frame_s + (np.arange(n) + 0.5) * frame_s / n
-    fr = synthetic_frame(cam, nav, slew.q0, slew.w0, times, rng, alpha_body=slew.alpha, sigma_px=SIGMA_PX,
+    fr = simulate_tracking_frame(cam, nav, slew.q0, slew.w0, times, rng, alpha_body=slew.alpha, sigma_px=SIGMA_PX,
                          n_false=n_false, p_detect=p_detect)
     return fr, times, (k + 1) * frame_s if stamp == "end" else k * frame_s
 

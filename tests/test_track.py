@@ -16,6 +16,7 @@ from startracker.rotations import (
     quat_random,
     quat_to_rotvec,
 )
+from startracker.simulation import simulate_tracking_frame
 from startracker.track import (
     DKVLUT,
     MATCH_METHODS,
@@ -24,7 +25,6 @@ from startracker.track import (
     predict_star_positions,
     prediction_radius_px,
     prediction_sigma_px,
-    synthetic_frame,
 )
 
 # Paper 000, Appendix A.
@@ -216,7 +216,7 @@ def test_matching_accuracy_100_percent_at_sigma_1px(catalog):
         q = quat_random(rng)
         w = slew_axis(rng) * np.radians(14.0)
         times = np.arange(15) * 0.1 / 15
-        fr = synthetic_frame(cam, catalog, q, w, times, rng, sigma_px=1.0)
+        fr = simulate_tracking_frame(cam, catalog, q, w, times, rng, sigma_px=1.0)
         pred = predict_star_positions(cam, catalog, q, times, 0.0, w)
         key = {(s, i): j for j, (s, i) in enumerate(zip(pred.star_index.tolist(), pred.instant.tolist()))}
         truth = np.array([key[(s, i)] for s, i in zip(fr.star_index.tolist(), fr.instant.tolist())])
@@ -249,7 +249,7 @@ def test_n_attitudes_per_frame_timestamps_and_covariance_consistent_with_truth(c
         q = quat_random(rng)
         w = slew_axis(rng) * np.radians(10.0)
         times = 100.0 + k * 0.1 + np.arange(11) * 0.1 / 11
-        fr = synthetic_frame(cam, nav, q, w, times, rng, t_ref_s=times[0], sigma_px=sigma_px, n_false=200)
+        fr = simulate_tracking_frame(cam, nav, q, w, times, rng, t_ref_s=times[0], sigma_px=sigma_px, n_false=200)
         # Prediction from a slightly wrong prior (20 arcsec, 0.1 %/s rate error), as in tracking.
         q_prior = quat_multiply(q, quat_from_rotvec(rng.normal(0, np.radians(20 / 3600), 3)))
         pred = predict_star_positions(cam, nav, q_prior, times, times[0], w * 1.001, margin_px=6.0)
@@ -281,7 +281,7 @@ def test_instants_with_too_few_stars_are_skipped(catalog):
     q = quat_random(rng)
     w = slew_axis(rng) * np.radians(5.0)
     times = np.arange(6) * 0.1 / 6
-    fr = synthetic_frame(cam, catalog, q, w, times, rng, sigma_px=0.2)
+    fr = simulate_tracking_frame(cam, catalog, q, w, times, rng, sigma_px=0.2)
     # Instant 2 keeps only two stars, instant 4 none.
     drop = ((fr.instant == 2) & (np.cumsum(fr.instant == 2) > 2)) | (fr.instant == 4)
     xy = fr.xy[~drop]
@@ -297,7 +297,7 @@ def test_outlier_on_a_predicted_spot_is_rejected(catalog):
     rng = np.random.default_rng(9)
     q = quat_random(rng)
     times = np.array([0.0])
-    fr = synthetic_frame(cam, catalog, q, np.zeros(3), times, rng, sigma_px=0.1)
+    fr = simulate_tracking_frame(cam, catalog, q, np.zeros(3), times, rng, sigma_px=0.1)
     pred = predict_star_positions(cam, catalog, q, times)
     xy = fr.xy.copy()
     xy[0] += [2.5, -1.5]  # one spot displaced 2.9 px: matched (r = 4), but 29 σ off in the Wahba residual

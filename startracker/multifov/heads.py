@@ -23,7 +23,7 @@ the equations below are rebuilt from the words and the geometry (our reading):
 
 Rebuilding a fused point ``(x', y', f_m)`` gives the same direction as ``C_am s_a``, so inter-star angles
 measured on the fused image equal the angles between the stars' body-frame directions; the matcher
-(:mod:`startracker.multifov_matcher`) uses those directions (:meth:`MultiFovSensor.body_vectors`).
+(:mod:`startracker.multifov.matcher`) uses those directions (:meth:`MultiFovSensor.body_vectors`).
 
 Image coordinates are measured, i.e. distorted; the rebuild of eq. 4 first removes each head's radial
 distortion (:meth:`Camera.undistort_px_to_mm`), and the extended plane is an ideal (distortion-free)

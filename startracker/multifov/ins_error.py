@@ -73,7 +73,7 @@ def attitude_sigma_bound_rad(spec: GyroSpec, elapsed_s, initial_sigma_rad: float
     (random constant σ_b, Markov σ_m and τ, angle random walk N, rate random walk K, scale factor σ_sf at a
     body rate up to ω_max). The bound is reached when the body does not rotate: rotation only averages the
     drift down, because every term's autocovariance is non-negative. It is the honest INS covariance ``σ² I``
-    that :func:`startracker.local_catalog.predict_scopes` turns into error radii.
+    that :func:`startracker.multifov.local_catalog.predict_scopes` turns into error radii.
 
     Parameters
     ----------

@@ -7,7 +7,7 @@ Our reading of the equations whose symbols the extraction lost:
 * **eq. 7 (estimated LoS).** The same with the INS attitude, ``l̂_k = Ĉ_b^i C_k z``.
 * **eqs. 8-10 (bias rotation).** The INS attitude is the truth turned by a small rotation:
   ``Ĉ_b^i = (I + [μ×]) C_b^i`` with ``μ`` the INS attitude error in ICRS axes (platform error and position
-  error combined, see :mod:`startracker.ins_error`); so ``l̂_k = R(μ) l_k`` and ``μ`` is the Euler (rotation)
+  error combined, see :mod:`startracker.multifov.ins_error`); so ``l̂_k = R(μ) l_k`` and ``μ`` is the Euler (rotation)
   vector of eq. 10 taking the real LoS to the estimated one, the same for every head.
 * **eqs. 11-12 (bias angle).** The estimated LoS lies on the cone of half-angle ``α_k`` about the real one,
   ``α_k = ∠(l̂_k, l_k)``; to first order ``α_k = |μ × l_k|``, the part of ``μ`` across the LoS (a roll about
@@ -42,7 +42,7 @@ import numpy as np
 
 from startracker.catalog import StarCatalog
 from startracker.kvector import KVector
-from startracker.multifov import MultiFovSensor
+from startracker.multifov.heads import MultiFovSensor
 from startracker.rotations import quat_to_matrix
 from startracker.validation import as_float_array
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from startracker.attitude import RAD_TO_ARCSEC, solve_wahba_single
 from startracker.catalog import StarCatalog
-from startracker.color import DEFAULT_RESPONSE, ChannelResponse
+from startracker.color.camera import DEFAULT_RESPONSE, ChannelResponse
 from startracker.identify import IdentificationResult, StarDatabase, build_database
 from startracker.identify.frame import Frame, IdentifyOptions, prepare_frame
 from startracker.identify.pyramid import PairCandidates, smart_triads, triangles

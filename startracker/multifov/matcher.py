@@ -5,7 +5,7 @@ Per frame:
 1. predict each head's LoS from the INS attitude (eqs. 6-7);
 2. compute its error radius and catalog radius from the INS covariance (eqs. 8-14);
 3. select the part catalog by cone search (eq. 15) and build its within- and cross-FoV argument sets
-   (:class:`startracker.local_catalog.LocalCatalog`);
+   (:class:`startracker.multifov.local_catalog.LocalCatalog`);
 4. match the fused image against it.
 
 Matching (triangle algorithm, paper 001 §3.4). The detections of all heads are put on one picture (their
@@ -35,6 +35,9 @@ so large that the part catalog is no smaller than the sky), the same matcher run
 the same structure (:meth:`LocalCatalog.all_sky`, built once per matcher) and the result says so
 (``method="multifov-allsky"``, ``fallback_all_sky=True``). A head whose error radius exceeds its FoV radius
 is reported in ``status`` ("ins error exceeds fov") while the widened part catalog is still used.
+
+The module is one class whose steps (triangle search, verification, acceptance rules above) share the
+matcher's cached catalog state, so it stays whole at about 600 lines.
 """
 
 from __future__ import annotations
@@ -50,8 +53,8 @@ from scipy.stats import binom
 from startracker.attitude import RAD_TO_ARCSEC, solve_wahba
 from startracker.catalog import StarCatalog
 from startracker.identify.result import IdentificationResult
-from startracker.local_catalog import LocalCatalog, ObservedScope, predict_scopes
-from startracker.multifov import MultiFovSensor
+from startracker.multifov.heads import MultiFovSensor
+from startracker.multifov.local_catalog import LocalCatalog, ObservedScope, predict_scopes
 from startracker.rotations import quat_multiply
 
 __all__ = ["MultiFovResult", "InertialAidedMatcher"]

@@ -1,0 +1,285 @@
+"""Light sources as spots: the table of sources, smeared spot paths, render windows, intensifier noise.
+
+Part of :mod:`startracker.imaging`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import ndtr
+
+from startracker.imaging.background import COSMIC_SIGMA_PX, BackgroundField, FalseObjects
+from startracker.imaging.detector import SensorModel
+from startracker.scene import Scene
+
+__all__ = [
+    "SourceTable",
+    "Spots",
+    "KIND_STAR",
+    "KIND_NOISE",
+    "KIND_HOT_PIXEL",
+    "KIND_COSMIC_RAY",
+    "KIND_DEBRIS",
+    "SOURCE_KIND_NAMES",
+    "frame_spots",
+    "randomize_intensified",
+    "window_half_widths",
+    "render_bucketed",
+    "render_windows",
+]
+
+
+KIND_STAR, KIND_NOISE, KIND_HOT_PIXEL, KIND_COSMIC_RAY, KIND_DEBRIS = range(5)
+SOURCE_KIND_NAMES = ("star", "noise", "hot_pixel", "cosmic_ray", "debris")
+
+
+# ----------------------------------------------------------------------------------- sources
+@dataclass(frozen=True, eq=False)
+class SourceTable:
+    """Every light source of a frame, for truth labels.
+
+    Stars come first, exposure-major: source ``i * M + m`` is scene star m in exposure i.
+
+    Attributes
+    ----------
+    kind : ndarray of int, shape (Q,)
+        ``KIND_*`` code.
+    star : ndarray of int, shape (Q,)
+        Scene star index, −1 for other kinds.
+    exposure : ndarray of int, shape (Q,)
+        Exposure index (stars and debris), −1 otherwise.
+    xy : ndarray, shape (Q, 2)
+        Where the source's light is centred (time-averaged position over the exposure), px.
+    expected_e : ndarray, shape (Q,)
+        Expected charge of the source, e⁻.
+    """
+
+    kind: np.ndarray
+    star: np.ndarray
+    exposure: np.ndarray
+    xy: np.ndarray
+    expected_e: np.ndarray
+
+    def __len__(self):
+        return len(self.kind)
+
+
+# ----------------------------------------------------------------------------------- spots
+@dataclass
+class Spots:
+    """Spot segments to render: sub-spot centres and weights, one Gaussian σ each."""
+
+    sub_xy: np.ndarray  # (P, K, 2)
+    sub_w: np.ndarray  # (P, K) expected pe (optical) or e- (direct)
+    sigma: np.ndarray  # (P,)
+    source: np.ndarray  # (P,) index into the SourceTable
+    along: np.ndarray  # (P, 2) unit vector along the segment (x, y)
+    length: np.ndarray  # (P,) segment length, px
+    direct: bool  # charge deposited directly (cosmic rays) rather than light
+
+
+def _resample_path(path: np.ndarray, n_seg: int) -> np.ndarray:
+    """Positions at n_seg+1 instants evenly spaced in time along paths sampled evenly in time.
+
+    path (E, S, 2) -> (E, n_seg+1, 2), linear between samples.
+    """
+    s = path.shape[1]
+    f = np.linspace(0.0, s - 1.0, n_seg + 1)
+    i0 = np.minimum(np.floor(f).astype(int), s - 2)
+    w = (f - i0)[None, :, None]
+    return path[:, i0] * (1 - w) + path[:, i0 + 1] * w
+
+
+def _segments_to_spots(knots, total, sigma, source, direct, max_seg_px):
+    """knots (E, n_seg+1, 2) of paths, total signal (E,), sigma (E,) -> Spots with K sub-spots per segment."""
+    e_n, n1, _ = knots.shape
+    n_seg = n1 - 1
+    a = knots[:, :-1].reshape(-1, 2)
+    b = knots[:, 1:].reshape(-1, 2)
+    d = b - a
+    length = np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2)
+    sig = np.repeat(sigma, n_seg)
+    k = int(max(1, math.ceil(float(np.max(length / (0.5 * sig), initial=0.0)))))
+    frac = (np.arange(k) + 0.5) / k
+    sub = a[:, None, :] + d[:, None, :] * frac[None, :, None]
+    w = np.repeat(total / (n_seg * k), n_seg)[:, None] * np.ones((1, k))
+    along = np.where(length[:, None] > 1e-12, d / np.maximum(length, 1e-12)[:, None], np.array([1.0, 0.0]))
+    return Spots(sub, w, sig, np.repeat(source, n_seg), along, length, direct)
+
+
+def _paths_to_spots(paths, total, sigma, source, direct):
+    """Split polylines (E, S, 2) sampled evenly in time into segments no longer than 4σ."""
+    if len(paths) == 0:
+        return None
+    dp = np.diff(paths, axis=1)
+    seg_len = np.sqrt(dp[..., 0] ** 2 + dp[..., 1] ** 2).sum(axis=1)
+    n_seg = int(max(1, math.ceil(float(np.max(seg_len / (4.0 * sigma))))))
+    return _segments_to_spots(_resample_path(paths, n_seg), total, sigma, source, direct, 4.0 * sigma)
+
+
+def _on_detector(paths, margin, w, h):
+    lo = paths.min(axis=1)
+    hi = paths.max(axis=1)
+    return (hi[:, 0] >= -0.5 - margin) & (lo[:, 0] <= w - 0.5 + margin) & (hi[:, 1] >= -0.5 - margin) & (lo[:, 1] <= h - 0.5 + margin)
+
+
+def frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
+    """All spots of a frame and the source table (stars, debris, cosmic rays; hot pixels appended later)."""
+    cam = scene.camera
+    w, h = cam.resolution
+    n, m = scene.n_exposures, scene.n_stars
+    tau = scene.plan.exposure_s
+    sigma = model.sigma_px
+    g = model.intensifier_gain
+    margin = 5.0 * sigma
+
+    pe_star = model.star_pe(scene.vmag, scene.bv, tau)  # (M,)
+    kinds = [np.full(n * m, KIND_STAR)]
+    stars = [np.tile(np.arange(m), n)]
+    expos = [np.repeat(np.arange(n), m)]
+    xys = [scene.xy_mean.reshape(-1, 2)]
+    exp_e = [np.tile(pe_star * g, n)]
+    optical_paths = [np.moveaxis(scene.xy_path, 1, 2).reshape(n * m, scene.xy_path.shape[1], 2)]  # (N*M, S, 2)
+    optical_total = [np.tile(pe_star, n)]
+    optical_source = [np.arange(n * m)]
+    q = n * m
+
+    nd = len(fo.debris_vmag)
+    if nd:
+        t_mid = scene.t_frame_start + 0.5 * scene.plan.frame_period_s
+        dt = scene.path_times - t_mid  # (N, S)
+        paths = fo.debris_xy0[None, :, None, :] + fo.debris_velocity_px_s[None, :, None, :] * dt[:, None, :, None]
+        paths = paths.reshape(n * nd, -1, 2)  # exposure-major
+        pe_deb = model.star_pe(fo.debris_vmag, np.zeros(nd), tau)
+        kinds.append(np.full(n * nd, KIND_DEBRIS))
+        stars.append(np.full(n * nd, -1))
+        expos.append(np.repeat(np.arange(n), nd))
+        mean_xy = 0.5 * (paths[:, 0] + paths[:, -1])
+        xys.append(mean_xy)
+        exp_e.append(np.tile(pe_deb * g, n))
+        optical_paths.append(paths)
+        optical_total.append(np.tile(pe_deb, n))
+        optical_source.append(q + np.arange(n * nd))
+        q += n * nd
+
+    nc = len(fo.cosmic_e)
+    cosmic = None
+    if nc:
+        kinds.append(np.full(nc, KIND_COSMIC_RAY))
+        stars.append(np.full(nc, -1))
+        expos.append(np.full(nc, -1))
+        xys.append(0.5 * (fo.cosmic_start_xy + fo.cosmic_end_xy))
+        exp_e.append(fo.cosmic_e)
+        cpaths = np.stack([fo.cosmic_start_xy, fo.cosmic_end_xy], axis=1)
+        cosmic = _paths_to_spots(cpaths, fo.cosmic_e, np.full(nc, COSMIC_SIGMA_PX), q + np.arange(nc), True)
+        q += nc
+
+    paths = np.concatenate(optical_paths) if optical_paths else np.zeros((0, 3, 2))
+    total = np.concatenate(optical_total)
+    source = np.concatenate(optical_source)
+    keep = _on_detector(paths, margin, w, h) & (total > 0)
+    optical = _paths_to_spots(paths[keep], total[keep], np.full(int(keep.sum()), sigma), source[keep], False)
+    table = dict(
+        kind=np.concatenate(kinds),
+        star=np.concatenate(stars),
+        exposure=np.concatenate(expos),
+        xy=np.concatenate(xys),
+        expected_e=np.concatenate(exp_e),
+    )
+    return optical, cosmic, table
+
+
+def randomize_intensified(spots: Spots, model: SensorModel, rng: np.random.Generator) -> None:
+    """Photon-counting statistics of an intensified spot (module docstring), in place.
+
+    Turns the expected photoelectrons of each segment into its random charge (e⁻) and shifts the segment by
+    the scatter of its photoelectrons' positions.
+    """
+    s = spots.sub_w.sum(axis=1)
+    n_pe = rng.poisson(s)
+    g = model.intensifier_gain
+    k = model.gamma_shape_per_pe
+    if math.isinf(k):
+        charge = g * n_pe
+    else:
+        charge = rng.gamma(np.maximum(k * n_pe, 1e-300), g / k) * (n_pe > 0)
+    f2 = model.excess_noise_factor**2
+    n_eff = np.maximum(n_pe, 1)
+    so2 = model.optics_sigma_px**2
+    sd_cross = np.sqrt(f2 * so2 / n_eff)
+    sd_along = np.sqrt(f2 * (so2 + spots.length**2 / 12.0) / n_eff)
+    z = rng.standard_normal((len(s), 2))
+    shift = spots.along * (z[:, :1] * sd_along[:, None]) + np.stack([-spots.along[:, 1], spots.along[:, 0]], 1) * (z[:, 1:] * sd_cross[:, None])
+    spots.sub_xy = spots.sub_xy + shift[:, None, :]
+    k_sub = spots.sub_w.shape[1]
+    spots.sub_w = np.repeat((charge / k_sub)[:, None], k_sub, axis=1)
+
+
+def window_half_widths(spots: Spots, bg: "BackgroundField", e_per_unit: float, floor_frac: float) -> np.ndarray:
+    """Per-spot window half width, px: where the spot's profile falls to ``floor_frac`` of the background
+    noise σ (at least 2σ), +1 px so that every detected pixel has its neighbours. Shape (P,)."""
+    peak_e = spots.sub_w.sum(axis=1) * e_per_unit / (2 * np.pi * spots.sigma**2)
+    floor_e = floor_frac * math.sqrt(max(float(bg.var_e(bg.cx, bg.cy)), 1e-6))
+    r = spots.sigma * np.sqrt(2.0 * np.log(np.maximum(peak_e / floor_e, math.e)))
+    return np.ceil(np.maximum(r, 2.0 * spots.sigma)).astype(np.int64) + 1
+
+
+def render_bucketed(spots: Spots, hw: np.ndarray, n_cols: int, n_rows: int, min_value: float = 0.0):
+    """:func:`render_windows` for groups of spots sharing a half width (a few groups per frame)."""
+    out_l, out_v, out_s = [], [], []
+    for h in np.unique(hw):
+        sel = np.flatnonzero(hw == h)
+        sub = Spots(spots.sub_xy[sel], spots.sub_w[sel], spots.sigma[sel], spots.source[sel], spots.along[sel],
+                     spots.length[sel], spots.direct)
+        lin, val, src = render_windows(sub, int(h), n_cols, n_rows, min_value)
+        out_l.append(lin)
+        out_v.append(val)
+        out_s.append(src)
+    if not out_l:
+        return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0, dtype=np.int64)
+    return np.concatenate(out_l), np.concatenate(out_v), np.concatenate(out_s)
+
+
+def render_windows(spots: Spots, hw: int, n_cols: int, n_rows: int, min_value: float = 0.0):
+    """Pixel-integrated Gaussian sub-spots summed into one window per spot.
+
+    Window pixels whose expected signal is below ``min_value`` are dropped (sparse path).
+
+    Returns
+    -------
+    lin : ndarray of int64, shape (E,)
+        Linear pixel index (row * n_cols + col) of every in-bounds window pixel.
+    value : ndarray, shape (E,)
+        Expected signal there (units of ``sub_w``).
+    source : ndarray of int, shape (E,)
+    """
+    x = spots.sub_xy[..., 0]
+    y = spots.sub_xy[..., 1]
+    c_lo = np.rint(x.min(axis=1)).astype(np.int64) - hw
+    c_hi = np.rint(x.max(axis=1)).astype(np.int64) + hw
+    r_lo = np.rint(y.min(axis=1)).astype(np.int64) - hw
+    r_hi = np.rint(y.max(axis=1)).astype(np.int64) + hw
+    wc = int((c_hi - c_lo).max()) + 1
+    wr = int((r_hi - r_lo).max()) + 1
+    inv_s = (1.0 / spots.sigma)[:, None, None]
+    ec = (c_lo[:, None] - 0.5 + np.arange(wc + 1))[:, None, :]
+    er = (r_lo[:, None] - 0.5 + np.arange(wr + 1))[:, None, :]
+    gx = np.diff(ndtr((ec - x[:, :, None]) * inv_s), axis=2)  # (P, K, Wc)
+    gy = np.diff(ndtr((er - y[:, :, None]) * inv_s), axis=2)  # (P, K, Wr)
+    gy *= spots.sub_w[:, :, None]
+    val = np.matmul(gy.transpose(0, 2, 1), gx)  # (P, Wr, Wc)
+    rows = r_lo[:, None] + np.arange(wr)
+    cols = c_lo[:, None] + np.arange(wc)
+    ok = ((rows >= 0) & (rows < n_rows))[:, :, None] & ((cols >= 0) & (cols < n_cols))[:, None, :]
+    if min_value > 0:
+        ok &= val >= min_value
+    nz = np.flatnonzero(ok)
+    p, rem = np.divmod(nz, wr * wc)
+    r, c = np.divmod(rem, wc)
+    lin = (r_lo[p] + r) * n_cols + (c_lo[p] + c)
+    return lin, val.reshape(-1)[nz], spots.source[p]
+
+

@@ -15,7 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-__all__ = ["main"]
+__all__ = ["main", "build_parser", "format_table"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +43,7 @@ def _env_kwargs(pairs) -> dict:
     return out
 
 
-def _format_table(rows: list[dict], keys=None) -> str:
+def format_table(rows: list[dict], keys=None) -> str:
     if not rows:
         return "(no rows)"
     keys = keys or list(rows[0].keys())
@@ -182,7 +182,7 @@ def cmd_campaign(args) -> int:
         raise UsageError(str(exc))
     from experiments.campaign import summarise_results
 
-    print(_format_table(summarise_results(rows)))
+    print(format_table(summarise_results(rows)))
     print(f"results: {camp.out_dir / 'results.csv'}  summary: {camp.out_dir / 'summary.csv'}")
     return 0
 
@@ -203,7 +203,7 @@ def cmd_bench(args) -> int:
         except ValueError as exc:
             raise UsageError(str(exc))
         rows = run_agent_benchmark(args.policy, n_per_difficulty=args.episodes, progress=not args.no_progress)
-        print(_format_table(rows))
+        print(format_table(rows))
         return 0
     if args.name == "list":
         print("benchmarks: agents, " + ", ".join(scripts))

@@ -164,7 +164,8 @@ class Campaign:
                 self.stale[spec.run_id] = ["unreadable file"]  # a corrupt file is redone, never trusted
                 continue
             new = self.base_record(spec)
-            if old.get("key") == new["key"] and "summary" in old:
+            # the key is recomputed from what the file says, so an edited or older record cannot pass for current
+            if run_key(old) == new["key"] and "summary" in old:
                 self._finished.add(spec.run_id)
             else:
                 self.stale[spec.run_id] = key_differences(old, new) or ["record format"]

@@ -364,9 +364,27 @@ def _positive_int(text: str) -> int:
     return v
 
 
+class _Help(argparse.HelpFormatter):
+    """Shows ``(default: X)`` for options with a real default (not None or a False flag)."""
+
+    def _get_help_string(self, action):
+        h = action.help or ""
+        real = not (action.default is None or action.default is False or action.default == argparse.SUPPRESS)
+        if real and "default" not in h and action.option_strings:
+            h += " (default: %(default)s)"
+        return h
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the one-line error of every other usage mistake (``--help`` still shows the usage)."""
+
+    def error(self, message):
+        self.exit(2, f"startracker-gym: error: {self.prog.removeprefix('startracker-gym ')}: {message}\n")
+
+
 def _episode_parser(sub, name: str, help_text: str, choices: dict, defaults: dict):
     s = sub.add_parser(name, help=help_text, description=help_text,
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       formatter_class=_Help)
     s.add_argument("--policy", default="eigenaxis", help="pd | eigenaxis | random | zero | module:Class (a module in "
                    "the working directory or installed)")
     s.add_argument("--seed", type=int, default=0, help="seeds the env, every sensor error and the policy")
@@ -397,7 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     choices = _choices()
     defaults = _env_defaults()
-    p = argparse.ArgumentParser(prog="startracker-gym", description=__doc__.split("\n\n")[0],
+    p = _Parser(prog="startracker-gym", description=__doc__.split("\n\n")[0],
                                 epilog=__doc__.split("\n\n")[1], formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", required=True)
     _episode_parser(sub, "slew", "one closed-loop slew with the full sensor pipeline", choices, defaults)
@@ -406,7 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
     keys = ", ".join(setting_keys())
     c = sub.add_parser(
         "campaign", help="Monte Carlo over seeds and a grid of settings (resumable)",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=_Help,
         description="Monte Carlo over seeds and a grid of settings. Runs are saved as they finish; the same command "
                     "resumes, reusing a run only when its settings, env configuration and code are unchanged.",
         epilog=f"settings for --grid and --env: {keys}. task is slew or hold. Values are JSON where they are not plain "
@@ -426,7 +444,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_campaign)
 
     b = sub.add_parser("bench", help="run benchmarks/ by name, or 'agents' for the agent benchmark",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       formatter_class=_Help)
     b.add_argument("name", help="agents | all | list | a benchmark name (benchmarks/bench_<name>.py of a checkout)")
     b.add_argument("--quick", action="store_true", help="short runs")
     b.add_argument("--policy", default="eigenaxis", help="for 'agents': pd | eigenaxis | ... | module:Class")
@@ -438,7 +456,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a usage error (2), already printed
+        return int(exc.code or 0)
     try:
         return int(args.func(args) or 0)
     except UsageError as exc:

@@ -247,9 +247,9 @@ def summarise(rows, first_info, last_info, terminated: bool, control_period_s: f
     mode_share_lost / _acquire / _track, lost_lock_events, control_effort (Σ mean(a²) dt), steps, sim_time_s,
     wall_s, steps_per_s.
 
-    For ``task="hold"`` also: pointing_error_rms_arcsec / _max_arcsec (true attitude to target over the episode),
-    pointing_stability_arcsec_1s (largest true rotation over any 1 s window: drift) and jitter_rate_rms_arcsec_s
-    (RMS of the true body rate).
+    For ``task="hold"`` also, over the second half of the episode (after the capture transient):
+    pointing_error_rms_arcsec / _max_arcsec (true attitude to target), pointing_stability_arcsec_1s (largest true
+    rotation within any 1 s: drift) and jitter_rate_rms_arcsec_s (RMS of the true body rate).
     """
     n = len(rows)
     err = np.array([r["attitude_error_arcsec"] for r in rows]) if n else np.zeros(0)
@@ -288,6 +288,7 @@ def summarise(rows, first_info, last_info, terminated: bool, control_period_s: f
 
 def _hold_figures(rows, control_period_s: float) -> dict:
     nan = float("nan")
+    rows = rows[len(rows) // 2:]
     if not rows:
         return dict(pointing_error_rms_arcsec=nan, pointing_error_max_arcsec=nan, pointing_stability_arcsec_1s=nan,
                     jitter_rate_rms_arcsec_s=nan)

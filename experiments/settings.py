@@ -137,6 +137,8 @@ def resolve_env_config(env_id: str, env_kwargs: dict, env=None) -> dict:
         for k, v in cfg.items():
             if v is None and hasattr(u, k):
                 cfg[k] = getattr(u, k)
+        if hasattr(u, "fault_list"):  # each fault with its default severity filled in
+            cfg["faults"] = list(u.fault_list)
     if cfg.get("faults") is not None:
         cfg["faults"] = [dataclasses.asdict(f) if dataclasses.is_dataclass(f) else f for f in cfg["faults"]]
     return to_jsonable(cfg)

@@ -153,7 +153,10 @@ def plot_episode(out_dir, steps: list[dict], frames: list | None = None, summary
                f"max {summary.get('pointing_error_max_arcsec', float('nan')):.2f}\u2033; "
                f"stability (1 s) {summary.get('pointing_stability_arcsec_1s', float('nan')):.2f}\u2033; "
                f"rate jitter RMS {summary.get('jitter_rate_rms_arcsec_s', float('nan')):.2f}\u2033/s")
-        ax[0].set_title(f"attitude hold: {txt}", fontsize=9)
+        ax[0].set_title(f"attitude hold, second half: {txt}", fontsize=9)
+        if len(t) > 1:
+            for a in ax:
+                a.axvline(t[len(t) // 2], color="grey", ls="--", lw=0.8)
     else:
         ax[0].semilogy(t, np.maximum(point, 1e-6), color="tab:blue", label="true pointing error")
         ax[0].set_ylabel("pointing error\nto target [deg]")

@@ -236,16 +236,17 @@ def plot_star_frame(path, frames: list[dict]) -> Path:
         top = 0.99 - row / n
         hgt = 0.97 / n
         ax0 = fig.add_axes([0.03, top - hgt, 0.38, hgt - 0.06])
-        pool = max(1, cols_px // 1024)
+        pool = max(1, cols_px // 512)  # max-pooling keeps point-like stars visible at this size
         pooled = img[: rows_px // pool * pool, : cols_px // pool * pool]
         pooled = pooled.reshape(rows_px // pool, pool, cols_px // pool, pool).max(axis=(1, 3))
-        ax0.imshow(_stretch(pooled, bg + 2.0 * sd, bg + 60.0 * sd), cmap="gray",
+        ax0.imshow(_stretch(pooled, bg + 3.0 * sd, bg + 40.0 * sd), cmap="gray",
                    extent=(-0.5, cols_px - 0.5, rows_px - 0.5, -0.5), interpolation="nearest")
         ax0.set_xticks([])
         ax0.set_yticks([])
-        ax0.set_title(f"head {f['head']} ({f['camera']}, {f['channel']}): frame at t = {f['t_frame_s']:.1f} s, "
+        ax0.set_title(f"head {f['head']} ({f['camera']}, {f['channel']}, {pool}\u00d7{pool} max-pooled): "
+                      f"frame at t = {f['t_frame_s']:.1f} s, "
                       f"{f['rate_deg_s']:.1f}\u00b0/s\nN = {f['n_exposures']} exposures, {f['n_stars']} stars, "
-                      f"{len(f['centroid_xy'])} centroids (pixel path, from the true attitude)", fontsize=8)
+                      f"{len(f['centroid_xy'])} centroids (pixel path, from the true attitude); circles: catalog stars", fontsize=8)
         xy = np.asarray(f["truth_xy"]).reshape(-1, np.asarray(f["vmag"]).size, 2)
         vis = np.asarray(f["visible"]).reshape(xy.shape[:2])
         truth = xy[vis]
@@ -253,6 +254,10 @@ def plot_star_frame(path, frames: list[dict]) -> Path:
         half = 45
         mid = xy[xy.shape[0] // 2]  # each star's centre in the middle exposure
         inner = vis.all(axis=0) & np.all((mid > half + 8) & (mid < np.array([cols_px, rows_px]) - half - 8), axis=1)
+        seen = vis.any(axis=0)
+        ax0.plot(mid[seen, 0], mid[seen, 1], "o", mfc="none", mec="tab:orange", ms=7, mew=0.6, alpha=0.8)
+        ax0.set_xlim(-0.5, cols_px - 0.5)
+        ax0.set_ylim(rows_px - 0.5, -0.5)
         centres = []
         for i in np.argsort(np.where(inner, f["vmag"], np.inf)):  # two crops on distinct bright stars
             if not inner[i]:
@@ -266,7 +271,7 @@ def plot_star_frame(path, frames: list[dict]) -> Path:
             c0 = np.clip(np.rint(c).astype(int), half, np.array([cols_px, rows_px]) - half)
             sub = img[c0[1] - half:c0[1] + half, c0[0] - half:c0[0] + half]
             ext = (c0[0] - half - 0.5, c0[0] + half - 0.5, c0[1] + half - 0.5, c0[1] - half - 0.5)
-            ax.imshow(_stretch(sub, bg + 1.0 * sd, float(np.percentile(sub, 99.8)) + sd), cmap="gray", extent=ext,
+            ax.imshow(_stretch(sub, bg + 2.0 * sd, float(np.percentile(sub, 99.8)) + sd), cmap="gray", extent=ext,
                       interpolation="nearest")
             tin = (np.abs(truth[:, 0] - c0[0]) < half) & (np.abs(truth[:, 1] - c0[1]) < half)
             ax.plot(truth[tin, 0], truth[tin, 1], "o", mfc="none", mec="tab:orange", ms=9, mew=0.8,

@@ -318,8 +318,9 @@ def benchmark_scripts() -> dict:
     return {}
 
 
-_NO_CHECKOUT = ("the benchmark scripts are part of the source checkout, not of the installed package: run this from "
-                "a clone of startracker-gym (git clone ...; cd startracker-gym); 'bench agents' works anywhere")
+_NO_CHECKOUT = ("the benchmark scripts belong to the source checkout and are not installed: run this from a clone of "
+                "the repository (its benchmarks/ folder is found in the working directory); 'bench agents' works "
+                "anywhere")
 
 
 def cmd_bench(args) -> int:
@@ -335,7 +336,7 @@ def cmd_bench(args) -> int:
     scripts = benchmark_scripts()
     if args.name == "list":
         if not scripts:
-            print("benchmarks: agents (the checkout's benchmark scripts are not available: " + _NO_CHECKOUT + ")")
+            print(f"benchmarks: agents ({_NO_CHECKOUT})")
         else:
             print("benchmarks: agents, " + ", ".join(scripts))
         return 0

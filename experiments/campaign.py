@@ -257,7 +257,7 @@ def run_campaign(campaign: Campaign, backend: str = "local", workers: int = 2, p
         if plots and summary:
             from experiments.telemetry import plot_campaign
 
-            plot_campaign(campaign.out_dir, summary, list(campaign.grid))
+            plot_campaign(campaign.out_dir, summary, list(campaign.grid), records)
     return records
 
 

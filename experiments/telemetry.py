@@ -290,12 +290,22 @@ def plot_star_frame(path, frames: list[dict]) -> Path:
     return path
 
 
-def plot_campaign(out_dir, summary: list[dict], grid_keys: list[str]) -> Path | None:
+def plot_campaign(out_dir, summary: list[dict], grid_keys: list[str], records: list[dict] | None = None) -> Path | None:
     """``campaign.png``: success rate and the median with its p10-p90 range of the main figures, one point per
-    setting combination (labelled by the swept settings)."""
+    setting combination (labelled by the swept settings); with ``records`` (the run records) each seed's value is
+    drawn as a small grey dot beside it."""
     plt = _pyplot()
     if plt is None or not summary:
         return None
+    from experiments.settings import as_scalar_text
+
+    per_point = [[] for _ in summary]
+    for rec in records or []:
+        st = rec.get("settings", {})
+        for i, row in enumerate(summary):
+            if all(row.get(k) == as_scalar_text(v) for k, v in st.items()):
+                per_point[i].append(rec.get("summary", {}))
+                break
     swept = [k for k in grid_keys if len({r.get(k) for r in summary}) > 1] or list(grid_keys)
     labels = ["\n".join(f"{k}={r.get(k)}" for k in swept) or "all" for r in summary]
     metrics = [("success_rate", "success rate", 1.0)]
@@ -322,7 +332,15 @@ def plot_campaign(out_dir, summary: list[dict], grid_keys: list[str]) -> Path | 
                                          for r in summary], float)
 
             med, lo, hi = col("median"), col("p10"), col("p90")
-            ax.errorbar(x, med, yerr=[med - lo, hi - med], fmt="o", capsize=4, color="tab:blue")
+            ax.errorbar(x, med, yerr=[med - lo, hi - med], fmt="o", capsize=4, color="tab:blue",
+                        label="median, p10-p90")
+            for xi, sums in zip(x, per_point):
+                v = [scale * su[m] for su in sums if su.get(m) is not None]
+                if v:
+                    ax.plot(np.full(len(v), xi + 0.12), v, ".", color="grey", ms=4, alpha=0.7,
+                            label="one seed" if xi == 0 else None)
+            if m == metrics[1][0]:
+                ax.legend(fontsize=7, loc="best")
         ax.set_ylabel(name, fontsize=8)
         ax.grid(alpha=0.3)
     axes[0, 0].set_title(f"campaign: median and p10-p90 over {summary[0]['runs']} seed(s) per point", fontsize=9)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import os
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,11 +90,18 @@ def expand_grid(grid: dict, seeds, fixed: dict | None = None) -> list[RunSpec]:
     return runs
 
 
-def _execute(spec: RunSpec, base: dict) -> dict:
-    """Run one episode (in a worker process) and return its run record (``base`` holds env config and provenance)."""
+def _execute(spec: RunSpec, base: dict, search_dir: str | None = None) -> dict:
+    """Run one episode (in a worker process) and return its run record (``base`` holds env config and provenance).
+
+    ``search_dir``: the launching process's working directory, put on ``sys.path`` so a ``module:Class`` policy of
+    the user's folder loads in workers that start elsewhere (Ray)."""
+    import sys
+
     from experiments.episode import run_episode
 
     ensure_working_directory_importable()
+    if search_dir and search_dir not in sys.path:
+        sys.path.insert(0, search_dir)
     env_id, policy, kwargs, options = split_settings(spec.settings)
     res = run_episode(env_id, policy=policy, seed=spec.seed, env_kwargs=kwargs, reset_options=options or None)
     return to_jsonable({**base, "summary": res.summary})
@@ -263,7 +271,7 @@ def run_campaign(campaign: Campaign, backend: str = "local", workers: int = 2, p
 
 def _run_local(campaign, jobs, workers, bar):
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        pending = {pool.submit(_execute, s, b) for s, b in jobs}
+        pending = {pool.submit(_execute, s, b, os.getcwd()) for s, b in jobs}
         try:
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
@@ -287,7 +295,7 @@ def _run_ray(campaign, jobs, bar):
         started = True
     try:
         remote = ray.remote(_execute)
-        refs = [remote.remote(s, b) for s, b in jobs]
+        refs = [remote.remote(s, b, os.getcwd()) for s, b in jobs]
         while refs:
             done, refs = ray.wait(refs, num_returns=1)
             for ref in done:

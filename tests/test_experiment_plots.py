@@ -2,7 +2,6 @@
 truth; the slew, hold and campaign plots are written."""
 
 import numpy as np
-import pytest
 
 from experiments.episode import run_episode
 from experiments.telemetry import plot_campaign, plot_episode

@@ -1,27 +1,44 @@
 # `make demo` and `make test` set up .venv on first use: a fresh machine needs only Python >= 3.11.
+#   make demo   light install (the package and matplotlib), then one closed-loop 120° slew with plots
+#   make test   the dev extra (pytest, SB3 + PyTorch, Ray) and the whole test suite
+#   make bench  every benchmark script of this checkout (light install)
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed
+CLI := $(VENV)/bin/startracker-gym
+BASE := $(VENV)/.base
+DEMO := $(VENV)/.demo-installed
+DEV := $(VENV)/.dev-installed
+# PyTorch for the RL tests (Stable-Baselines3). A version pin does not choose the build: from PyPI on Linux x86-64
+# this wheel pulls the CUDA libraries (several GB). For the CPU-only build (~200 MB) run
+#   make test TORCH_PIP_ARGS="--index-url https://download.pytorch.org/whl/cpu"
+# (on the project's CI machines the pin already resolves to a local CPU wheel).
+TORCH_PIP_ARGS ?=
 
 .PHONY: demo test bench clean
 
-$(STAMP): pyproject.toml
+$(BASE):
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	# CPU build of PyTorch for the RL baseline (Stable-Baselines3); pinned so pip never picks a multi-GB CUDA build
-	$(PY) -m pip install --quiet "torch==2.13.0"
+	touch $(BASE)
+
+$(DEMO): pyproject.toml $(BASE)
+	$(PY) -m pip install --quiet -e ".[plots]"
+	touch $(DEMO)
+
+$(DEV): pyproject.toml $(BASE)
+	$(PY) -m pip install --quiet "torch==2.13.0" $(TORCH_PIP_ARGS)
 	$(PY) -m pip install --quiet -e ".[dev]"
-	touch $(STAMP)
+	touch $(DEV) $(DEMO)
 
-demo: $(STAMP)
-	$(PY) -m envs slew --axis x --angle-deg 120 --out demo_output
+demo: $(DEMO)
+	$(CLI) slew --axis x --angle-deg 120 --out demo_output --force
 
-test: $(STAMP)
+test: $(DEV)
 	$(PY) -m pytest tests
 
-bench: $(STAMP)
-	$(PY) -m envs bench all
+bench: $(DEMO)
+	$(CLI) bench all
 
 clean:
 	rm -rf $(VENV) demo_output

@@ -10,14 +10,24 @@ import gymnasium as gym
 
 import envs  # noqa: F401  (registers the ids)
 from policies import Policy, load_policy
+from startracker.rotations import quat_angle_between, quat_conjugate, quat_multiply, quat_to_rotvec
 
-__all__ = ["EpisodeResult", "run_episode", "summarise"]
+__all__ = ["EpisodeResult", "run_episode", "summarise", "STEP_FIELDS", "STEP_VECTORS", "RESET_OPTIONS"]
 
 STEP_FIELDS = (
     "time_s", "pointing_error_deg", "attitude_error_arcsec", "omega_true_norm_deg_s", "omega_est_norm_deg_s",
     "tracker_mode", "n_stars", "exposures_per_frame", "n_attitude_samples", "update_rate_hz",
     "matching_latency_ms", "reward", "reward_pointing", "reward_effort", "reward_settle", "action_norm",
+    "estimate_error_cross_boresight_arcsec", "estimate_error_roll_arcsec",
 )
+# vector telemetry per step (CSV columns name_0, name_1, ...); quaternions (w, x, y, z), body frame unless named
+STEP_VECTORS = (
+    "q_true_body_to_icrs", "q_est_body_to_icrs", "q_target_body_to_icrs", "estimate_error_rotvec_body_arcsec",
+    "omega_true_body_deg_s", "omega_est_body_deg_s", "wheel_speed_rad_s", "wheel_momentum_Nms",
+    "wheel_torque_cmd_Nm", "action",
+)
+# options AgileSlewEnv.reset understands
+RESET_OPTIONS = ("slew_angle_deg", "slew_axis_body", "q_target", "faults")
 
 
 @dataclass
@@ -30,13 +40,14 @@ class EpisodeResult:
         Scalars (see :func:`summarise`).
     steps : list of dict
         One row per env step with the keys of ``STEP_FIELDS``.
-    last_frame : ndarray or None
-        RGB image of the last star frame when requested.
+    frames : list of dict
+        When requested: the star frame with the most exposures of the episode, rendered at pixel level from the
+        true attitude, one dict per head (see :func:`render_frames`).
     """
 
     summary: dict
     steps: list = field(default_factory=list)
-    last_frame: np.ndarray | None = None
+    frames: list = field(default_factory=list)
 
 
 def _make_policy(policy, env, seed):
@@ -72,17 +83,27 @@ def run_episode(
     reset_options : dict
         Passed to ``reset`` (e.g. ``{"slew_angle_deg": 90}``).
     keep_frame : bool
-        Keep an RGB image of the last star frame (renders one full frame at the end).
+        Also render the star frame with the most exposures (every head) for plots.
     max_steps : int, optional
         Stop early after this many steps.
+
+    Raises
+    ------
+    ValueError
+        An unknown reset option (e.g. ``slew_angle``), or any value the env refuses.
     """
-    kwargs = dict(env_kwargs or {})
-    if keep_frame:
-        kwargs["render_mode"] = "rgb_array"
-    env = gym.make(env_id, **kwargs)
+    options = dict(reset_options or {})
+    unknown = sorted(set(options) - set(RESET_OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown reset option(s) {unknown}; allowed: {', '.join(RESET_OPTIONS)}")
+    env = gym.make(env_id, **dict(env_kwargs or {}))
     try:
         pol = _make_policy(policy, env, seed)
-        obs, info = env.reset(seed=seed, options=reset_options)
+        obs, info = env.reset(seed=seed, options=options or None)
+        u = env.unwrapped
+        boresight = _mean_boresight(u)
+        wheel_inertia = float(u.spacecraft.wheel_inertia_kg_m2)
+        max_torque = np.asarray(u.spacecraft.wheel_max_torque_Nm, dtype=np.float64)
         rows = []
         wall0 = time.perf_counter()
         first_info = info
@@ -91,20 +112,80 @@ def run_episode(
         while not done:
             action = pol.act(obs)
             obs, reward, terminated, truncated, info = env.step(action)
-            rows.append(_row(info, reward, action))
+            rows.append(_row(info, reward, action, u.control_period_s, boresight, u.spacecraft.wheel_speeds_rad_s,
+                             wheel_inertia, max_torque))
             done = terminated or truncated
             n += 1
             if max_steps is not None and n >= max_steps:
                 break
         wall = time.perf_counter() - wall0
-        frame = env.render() if keep_frame else None
+        frames = render_frames(u, first_info, rows, seed) if keep_frame and rows else []
         summary = summarise(rows, first_info, info, terminated=bool(rows) and done and terminated,
-                            control_period_s=env.unwrapped.control_period_s,
-                            settle_hold_s=env.unwrapped.settle_hold_s, wall_s=wall)
-        summary.update(env_id=env_id, seed=int(seed), policy=_policy_name(policy))
-        return EpisodeResult(summary=summary, steps=rows, last_frame=frame)
+                            control_period_s=u.control_period_s, settle_hold_s=u.settle_hold_s, wall_s=wall,
+                            task=u.task)
+        summary.update(env_id=env_id, seed=int(seed), policy=_policy_name(policy),
+                       settle_tolerance_deg=float(np.degrees(u.settle_tolerance_rad)), task=u.task)
+        return EpisodeResult(summary=summary, steps=rows, frames=frames)
     finally:
         env.close()
+
+
+def _mean_boresight(env) -> np.ndarray:
+    """Unit mean boresight of the camera heads in the body frame (+z for one head or two symmetric about +z)."""
+    b = np.sum([h.camera.boresight_body() for h in env.avionics.heads], axis=0)
+    return b / np.linalg.norm(b)
+
+
+def render_frames(env, first_info: dict, rows: list, seed: int) -> list[dict]:
+    """The frame with the most exposures of an episode (the middle one of a tie), re-imaged at pixel level.
+
+    The true attitude over that step (interpolated between the step's end points) is imaged by each head with
+    the head's own detector model and exposure plan, and centroids are extracted from the image, so the picture
+    shows what the pixel path sees at that instant (with ``fidelity="centroid"`` the env itself never renders).
+
+    Returns
+    -------
+    list of dict, one per head
+        ``head`` (index), ``camera`` (name), ``image`` (rows, cols) DN (green channel for the 3CMOS head),
+        ``truth_xy`` (n_exposures, n_stars, 2) px (each star's centre in each exposure), ``visible``
+        (n_exposures, n_stars) bool, ``vmag`` (n_stars,), ``centroid_xy`` (m, 2) px, ``n_exposures``, ``t_frame_s``,
+        ``rate_deg_s``, ``n_stars``, ``channel``.
+    """
+    from startracker.centroid import extract_centroids
+    from startracker.imaging import render_frame
+    from startracker.scene import ExposurePlan, compute_scene
+
+    n_exp = np.array([r["exposures_per_frame"] for r in rows])
+    best = np.flatnonzero(n_exp == n_exp.max())
+    k = int(best[len(best) // 2])
+    prev = rows[k - 1] if k > 0 else {"time_s": first_info["time_s"], "q_true_body_to_icrs": first_info["q_true"]}
+    t0, t1 = float(prev["time_s"]), float(rows[k]["time_s"])
+    truth = (np.array([t0, t1]), np.array([prev["q_true_body_to_icrs"], rows[k]["q_true_body_to_icrs"]]))
+    frame_period = env.avionics.config.frame_period_s
+    n = max(int(n_exp[k]), 1)
+    rng = np.random.default_rng(seed)
+    out = []
+    for i, head in enumerate(env.avionics.heads):
+        plan = ExposurePlan(n_exposures=n, exposure_s=head.exposure_s, frame_period_s=frame_period)
+        if getattr(head, "is_color", False):
+            from startracker.color import channel_scenes, render_color_frame
+
+            scene = channel_scenes(head.color_camera, env.avionics.catalog, truth, plan, t0)[1]
+            image = render_color_frame(channel_scenes(head.color_camera, env.avionics.catalog, truth, plan, t0),
+                                       head.sensor_model, rng)[1]
+            channel = "green"
+        else:
+            scene = compute_scene(head.camera, env.avionics.catalog, truth, plan, t0)
+            image = render_frame(scene, head.sensor_model, rng)
+            channel = "mono"
+        det = extract_centroids(image, saturation_dn=head.sensor_model.saturation_dn)
+        out.append({
+            "head": i, "camera": getattr(head, "camera_name", str(i)), "image": image, "channel": channel,
+            "truth_xy": np.asarray(scene.xy), "visible": np.asarray(scene.visible), "vmag": np.asarray(scene.vmag),
+            "centroid_xy": np.asarray(det.xy), "n_exposures": n, "t_frame_s": t0,
+            "rate_deg_s": float(np.linalg.norm(rows[k]["omega_true_body_deg_s"])), "n_stars": int(scene.n_stars),
+        })
+    return out
 
 
 def _policy_name(policy) -> str:
@@ -115,9 +196,17 @@ def _policy_name(policy) -> str:
     return f"{type(policy).__module__}:{type(policy).__name__}"
 
 
-def _row(info: dict, reward: float, action) -> dict:
+def _row(info: dict, reward: float, action, control_period_s, boresight, wheel_speed, wheel_inertia, max_torque) -> dict:
+    q_true = np.asarray(info["q_true"], dtype=np.float64)
+    q_est = np.asarray(info["q_est"], dtype=np.float64)
+    # estimate error as a body-frame rotation vector (estimate relative to truth), split about the boresight
+    err = np.degrees(quat_to_rotvec(quat_multiply(quat_conjugate(q_true), q_est))) * 3600.0
+    roll = float(err @ boresight)
+    a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+    # times are multiples of the control period: round away the float sum's last bits
+    t = round(round(info["time_s"] / control_period_s) * control_period_s, 9)
     return {
-        "time_s": info["time_s"],
+        "time_s": t,
         "pointing_error_deg": info["pointing_error_deg"],
         "attitude_error_arcsec": info["attitude_error_arcsec"],
         "omega_true_norm_deg_s": float(np.degrees(np.linalg.norm(info["omega_true_body"]))),
@@ -133,11 +222,23 @@ def _row(info: dict, reward: float, action) -> dict:
         "reward_effort": info["reward_effort"],
         "reward_settle": info["reward_settle"],
         "action_norm": float(np.linalg.norm(action)),
+        "estimate_error_cross_boresight_arcsec": float(np.linalg.norm(err - roll * boresight)),
+        "estimate_error_roll_arcsec": abs(roll),
+        "q_true_body_to_icrs": q_true,
+        "q_est_body_to_icrs": q_est,
+        "q_target_body_to_icrs": np.asarray(info["q_target"], dtype=np.float64),
+        "estimate_error_rotvec_body_arcsec": err,
+        "omega_true_body_deg_s": np.degrees(np.asarray(info["omega_true_body"], dtype=np.float64)),
+        "omega_est_body_deg_s": np.degrees(np.asarray(info.get("omega_est_body", np.zeros(3)), dtype=np.float64)),
+        "wheel_speed_rad_s": np.array(wheel_speed, dtype=np.float64),
+        "wheel_momentum_Nms": wheel_inertia * np.array(wheel_speed, dtype=np.float64),
+        "wheel_torque_cmd_Nm": a * max_torque,
+        "action": np.array(action, dtype=np.float64),
     }
 
 
 def summarise(rows, first_info, last_info, terminated: bool, control_period_s: float, settle_hold_s: float,
-              wall_s: float = float("nan")) -> dict:
+              wall_s: float = float("nan"), task: str = "slew") -> dict:
     """Scalars of one episode.
 
     Keys: slew_angle_deg, success, settle_time_s (first instant of the final settled hold, NaN if never),
@@ -145,6 +246,10 @@ def summarise(rows, first_info, last_info, terminated: bool, control_period_s: f
     steps where the tracker held lock), update_rate_hz_mean / _max, matching_latency_ms_p50 / _p99,
     mode_share_lost / _acquire / _track, lost_lock_events, control_effort (Σ mean(a²) dt), steps, sim_time_s,
     wall_s, steps_per_s.
+
+    For ``task="hold"`` also, over the second half of the episode (after the capture transient):
+    pointing_error_rms_arcsec / _max_arcsec (true attitude to target), pointing_stability_arcsec_1s (largest true
+    rotation within any 1 s: drift) and jitter_rate_rms_arcsec_s (RMS of the true body rate).
     """
     n = len(rows)
     err = np.array([r["attitude_error_arcsec"] for r in rows]) if n else np.zeros(0)
@@ -177,4 +282,24 @@ def summarise(rows, first_info, last_info, terminated: bool, control_period_s: f
         "sim_time_s": float(sim_time),
         "wall_s": float(wall_s),
         "steps_per_s": float(n / wall_s) if wall_s > 0 else float("nan"),
+        **(_hold_figures(rows, control_period_s) if task == "hold" else {}),
+    }
+
+
+def _hold_figures(rows, control_period_s: float) -> dict:
+    nan = float("nan")
+    rows = rows[len(rows) // 2:]
+    if not rows:
+        return dict(pointing_error_rms_arcsec=nan, pointing_error_max_arcsec=nan, pointing_stability_arcsec_1s=nan,
+                    jitter_rate_rms_arcsec_s=nan)
+    point = np.array([r["pointing_error_deg"] for r in rows]) * 3600.0
+    q = np.array([r["q_true_body_to_icrs"] for r in rows])
+    lag = max(int(round(1.0 / control_period_s)), 1)
+    drift = np.degrees(quat_angle_between(q[:-lag], q[lag:])) * 3600.0 if len(q) > lag else np.zeros(0)
+    rate = np.array([np.linalg.norm(r["omega_true_body_deg_s"]) for r in rows]) * 3600.0
+    return {
+        "pointing_error_rms_arcsec": float(np.sqrt(np.mean(point**2))),
+        "pointing_error_max_arcsec": float(np.max(point)),
+        "pointing_stability_arcsec_1s": float(np.max(drift)) if drift.size else nan,
+        "jitter_rate_rms_arcsec_s": float(np.sqrt(np.mean(rate**2))),
     }

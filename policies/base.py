@@ -81,5 +81,13 @@ class Policy(ABC):
     def act(self, observation: np.ndarray) -> np.ndarray:
         """Wheel torque commands, shape (n_wheels,), in [-1, 1], from one observation."""
 
-    def _read(self, observation, name: str) -> np.ndarray:
+    def read(self, observation, name: str) -> np.ndarray:
+        """One named quantity of an observation, float64 (``name`` is a key of ``spec.observation_layout``).
+
+        Names: ``attitude_error_rotvec`` (rad, body), ``omega_body`` (rad/s), ``wheel_momentum_fraction``,
+        ``tracker_mode`` (one-hot lost/acquire/track), ``attitude_sigma`` (rad).
+        """
+        layout = self.spec.observation_layout
+        if name not in layout:
+            raise ValueError(f"name must be one of {sorted(layout)}, got {name!r}")
         return np.asarray(observation, dtype=np.float64)[self.spec.observation_layout[name]]

@@ -33,8 +33,8 @@ class PDPolicy(Policy):
         self.zeta = float(damping_ratio)
 
     def act(self, observation):
-        e = self._read(observation, "attitude_error_rotvec")
-        w = self._read(observation, "omega_body")
+        e = self.read(observation, "attitude_error_rotvec")
+        w = self.read(observation, "omega_body")
         torque = self.spec.inertia_kg_m2 @ (self.wn**2 * e - 2 * self.zeta * self.wn * w)
         return self.spec.body_torque_to_action(torque)
 
@@ -80,8 +80,8 @@ class EigenaxisSlewPolicy(Policy):
         self._pd = PDPolicy(spec, natural_frequency_rad_s=1.0, damping_ratio=0.9)
 
     def act(self, observation):
-        e = self._read(observation, "attitude_error_rotvec")
-        w = self._read(observation, "omega_body")
+        e = self.read(observation, "attitude_error_rotvec")
+        w = self.read(observation, "omega_body")
         theta = float(np.linalg.norm(e))
         if theta < self.capture:
             return self._pd.act(observation)

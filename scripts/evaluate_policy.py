@@ -10,7 +10,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.agent_benchmark import run_agent_benchmark  # noqa: E402
-from experiments.cli import _format_table  # noqa: E402
+from experiments.cli import format_table  # noqa: E402
 
 
 def main():
@@ -22,7 +22,7 @@ def main():
     rows = []
     for p in args.policies:
         rows += run_agent_benchmark(p, difficulties=args.difficulties, n_per_difficulty=args.episodes)
-    print(_format_table(rows))
+    print(format_table(rows))
 
 
 if __name__ == "__main__":

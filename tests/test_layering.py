@@ -10,8 +10,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def imported_top_modules(package: str):
     for path in (ROOT / package).rglob("*.py"):
-        if path.name == "__main__.py":
-            continue  # the command-line shim (`python -m envs`) may start the experiments package
         tree = ast.parse(path.read_text(), filename=str(path))
         for node in ast.walk(tree):
             if isinstance(node, ast.Import):

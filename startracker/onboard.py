@@ -41,7 +41,7 @@ from startracker.multifov import MultiFovSensor
 from startracker.rotations import quat_conjugate, quat_integrate, quat_interpolate, quat_rotate
 from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
 from startracker.sensor import MODES, AttitudeSample, StarTracker
-from startracker.validation import as_float_array, check_positive
+from startracker.validation import as_float_array, check_rng
 
 __all__ = [
     "StarTrackerUnit",
@@ -255,6 +255,8 @@ class StarTrackerUnit:
         ``n_wrong_samples``, ``filter_restarts``, ``faults_active``.
     last_time_error_s : float
         Timestamp error injected into the last frame (fault hooks), s.
+    last_samples : list of startracker.sensor.AttitudeSample
+        The star tracker's samples over the last :meth:`observe` span.
     """
 
     def __init__(self, config: UnitConfig | None = None, catalog: StarCatalog | None = None):
@@ -294,6 +296,7 @@ class StarTrackerUnit:
         self.tracker_mode = "lost"
         self.last_stats = _empty_stats()
         self.last_time_error_s = 0.0
+        self.last_samples: list[AttitudeSample] = []
         self._omega_gyro = np.zeros(3)
         self._last_frame = None
         self._lost_events = 0
@@ -339,7 +342,7 @@ class StarTrackerUnit:
             self.ekf.propagate(self._omega_gyro, t_now - sample.t_s)
 
     # ------------------------------------------------------------------ one span of truth
-    def observe(self, times_s, q_body_to_icrs, rng: np.random.Generator) -> None:
+    def observe(self, times_s, q_body_to_icrs, rng: np.random.Generator, omega_gyro=None) -> None:
         """Observe a span of the true attitude history: gyro samples, camera frames and the filter over it.
 
         Parameters
@@ -350,6 +353,9 @@ class StarTrackerUnit:
         q_body_to_icrs : ndarray, shape (G+1, 4)
             True attitudes at ``times_s`` (unit, float64).
         rng : numpy.random.Generator
+        omega_gyro : ndarray, shape (G, 3), optional
+            Measured gyro rates over the intervals ``(times_s[k-1], times_s[k]]``, rad/s, bias included: used
+            instead of the unit's simulated gyro (and its gyro faults).
         """
         if self.gyro is None:
             raise RuntimeError("call reset(rng) before observe()")
@@ -357,12 +363,15 @@ class StarTrackerUnit:
         t0 = times[0]
         n_frames = int(round((times[-1] - t0) / self.config.frame_period_s))
         duration_s = n_frames * self.config.frame_period_s
-        # average true rate over each gyro interval, from the quaternion increment (body frame)
-        dq = rk.quat_multiply(quat_conjugate(quats[:-1]), quats[1:])
-        omega_avg = rk.quat_to_rotvec(dq) / np.diff(times)[:, None]
-        omega_meas = self.gyro.measure(omega_avg, rng)
-        if self.faults:
-            omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
+        if omega_gyro is None:
+            # average true rate over each gyro interval, from the quaternion increment (body frame)
+            dq = rk.quat_multiply(quat_conjugate(quats[:-1]), quats[1:])
+            omega_avg = rk.quat_to_rotvec(dq) / np.diff(times)[:, None]
+            omega_meas = self.gyro.measure(omega_avg, rng)
+            if self.faults:
+                omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
+        else:
+            omega_meas = omega_gyro
         self._omega_gyro = omega_meas[-1].copy()
 
         samples = []
@@ -388,6 +397,7 @@ class StarTrackerUnit:
         self._n_wrong += wrong
         stats["n_wrong_samples"] = wrong
         stats["faults_active"] = self.faults.active_kinds(t0, times[-1]) if self.faults else []
+        self.last_samples = samples
 
         if self.ekf is None:
             if samples:
@@ -570,3 +580,118 @@ class StarTrackerUnit:
             return None
         scene, det = self._last_frame
         return self.head.render(scene, det)
+
+
+@dataclass(frozen=True)
+class EstimateHistory:
+    """What :func:`run_star_tracker` returns: the filter's estimate at the end of every frame.
+
+    Attributes
+    ----------
+    t_s : ndarray, shape (F,)
+        End of each frame, s.
+    q_body_to_icrs : ndarray, shape (F, 4)
+        Estimated attitude (identity while ``valid`` is False).
+    attitude_sigma_rad : ndarray, shape (F,)
+        Largest 1σ attitude uncertainty, rad (π while invalid).
+    omega_body : ndarray, shape (F, 3)
+        Estimated body rate, rad/s.
+    valid : ndarray of bool, shape (F,)
+    mode : tuple of str, length F
+        Tracker mode after each frame ("lost", "acquire", "track").
+    n_attitude_samples : ndarray of int, shape (F,)
+        Attitude samples the star tracker produced in each frame.
+    samples : list of startracker.sensor.AttitudeSample
+        Every star-tracker sample, in time order of the frames.
+    """
+
+    t_s: np.ndarray
+    q_body_to_icrs: np.ndarray
+    attitude_sigma_rad: np.ndarray
+    omega_body: np.ndarray
+    valid: np.ndarray
+    mode: tuple
+    n_attitude_samples: np.ndarray
+    samples: list
+
+
+def run_star_tracker(t_s, q_body_to_icrs, *, omega_gyro=None, camera: str = "paper000", rng=None,
+                     catalog: StarCatalog | None = None, **options) -> EstimateHistory:
+    """Run the star tracker and the filter over a trajectory of one's own: truth in, estimate history out.
+
+    Every frame is imaged from the trajectory (slerp between its samples), detected, identified or tracked,
+    and fused with the gyro by the EKF; the unit starts lost.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (T,)
+        Trajectory instants, s, strictly increasing, spanning at least one frame.
+    q_body_to_icrs : array_like, shape (T, 4)
+        True attitude at ``t_s`` (w, x, y, z; normalised here).
+    omega_gyro : array_like, shape (T-1, 3), optional
+        Measured gyro rates over ``(t_s[k-1], t_s[k]]``, rad/s, for uniformly spaced ``t_s`` (the gyro rate is
+        ``1 / (t_s[1] - t_s[0])``). Default: the unit's gyro (``gyro_grade``, ``gyro_rate_hz``) samples the
+        trajectory, resampled at the gyro's instants.
+    camera : str
+        Head camera, one of :data:`HEAD_CAMERAS`.
+    rng : numpy.random.Generator, optional
+        Every noise draw (default ``numpy.random.default_rng(0)``).
+    catalog : startracker.catalog.StarCatalog, optional
+        Default ``load_catalog(mag_limit)``.
+    **options
+        Any other field of :class:`UnitConfig` (``frame_period_s``, ``fidelity``, ``gyro_grade``, ``n_heads``,
+        ``identify_method``, ...).
+
+    Returns
+    -------
+    EstimateHistory
+        One row per whole frame inside the trajectory.
+    """
+    rng = np.random.default_rng(0) if rng is None else check_rng(rng)
+    t = as_float_array(t_s, "t_s", ndim=1)
+    q = as_float_array(q_body_to_icrs, "q_body_to_icrs", last_dim=4, ndim=2)
+    if len(q) != len(t) or len(t) < 2:
+        raise ValueError(f"q_body_to_icrs must have shape ({len(t)}, 4) with at least 2 rows, got {q.shape}")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("t_s must be strictly increasing")
+    norms = np.linalg.norm(q, axis=1)
+    if np.any(norms < 1e-12):
+        raise ValueError("q_body_to_icrs contains a zero quaternion")
+    q = q / norms[:, None]
+    if omega_gyro is not None:
+        w = as_float_array(omega_gyro, "omega_gyro", last_dim=3, ndim=2)
+        if len(w) != len(t) - 1:
+            raise ValueError(f"omega_gyro must have shape ({len(t) - 1}, 3), got {w.shape}")
+        dt = np.diff(t)
+        if np.ptp(dt) > 1e-9 * dt[0]:
+            raise ValueError("with omega_gyro, t_s must be uniformly spaced (the gyro's sample instants)")
+        options["gyro_rate_hz"] = 1.0 / float(dt[0])
+    config = UnitConfig(camera=camera, **options)
+    unit = StarTrackerUnit(config, catalog=catalog)
+    g = int(round(config.frame_period_s * config.gyro_rate_hz))  # gyro intervals per frame
+    n_frames = int(np.floor((t[-1] - t[0]) / config.frame_period_s + 1e-9))
+    if n_frames < 1:
+        raise ValueError(f"the trajectory must span at least one frame ({config.frame_period_s} s)")
+    if omega_gyro is None:
+        times = t[0] + np.arange(n_frames * g + 1) * unit.gyro_period_s
+        quats = quat_interpolate(t, q, np.minimum(times, t[-1]))
+    else:
+        times, quats = t, q
+    unit.reset(rng)
+    rows = dict(t=[], q=[], sig=[], w=[], valid=[], mode=[], n=[])
+    samples = []
+    for f in range(n_frames):
+        sl = slice(f * g, (f + 1) * g + 1)
+        unit.observe(times[sl], quats[sl], rng, omega_gyro=None if omega_gyro is None else w[f * g:(f + 1) * g])
+        est = unit.estimate()
+        rows["t"].append(times[sl][-1])
+        rows["q"].append(est.q_body_to_icrs)
+        rows["sig"].append(est.attitude_sigma_rad)
+        rows["w"].append(est.omega_body)
+        rows["valid"].append(est.valid)
+        rows["mode"].append(unit.tracker_mode)
+        rows["n"].append(unit.last_stats["n_attitude_samples"])
+        samples.extend(unit.last_samples)
+    return EstimateHistory(np.array(rows["t"]), np.array(rows["q"]), np.array(rows["sig"]), np.array(rows["w"]),
+                           np.array(rows["valid"], dtype=bool), tuple(rows["mode"]), np.array(rows["n"], dtype=int),
+                           samples)

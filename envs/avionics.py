@@ -30,13 +30,14 @@ class AvionicsConfig(UnitConfig):
     control_period_s: float = 0.1
 
     def __post_init__(self):
-        super().__post_init__()
+        # whole frames per control period first: a frame rate the env cannot step is the env argument to name
         ratio = self.control_period_s / self.frame_period_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError(
                 "frame_rate_hz * control_period_s must be a positive integer (whole frames per control period), "
                 f"got {ratio:.6g}"
             )
+        super().__post_init__()
 
 
 class Avionics(StarTrackerUnit):

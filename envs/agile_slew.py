@@ -231,6 +231,7 @@ class AgileSlewEnv(gym.Env):
         self.observation_space = spaces.Box(low=low, high=high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (nw,), dtype=np.float32)
         self._q_target = np.array([1.0, 0.0, 0.0, 0.0])
+        self._disturbance_world = np.zeros(3)
         self._settled_s = 0.0
         self._last_info: dict = {}
 

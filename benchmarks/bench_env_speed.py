@@ -26,7 +26,7 @@ import envs  # noqa: E402,F401
 from policies import EigenaxisSlewPolicy  # noqa: E402
 
 STAGES = {
-    "physics (MuJoCo RK4)": ("spacecraft.py", "_step_recording"),
+    "physics (MuJoCo RK4)": ("spacecraft.py", "step_recording"),
     "scene (truth projection)": ("scene.py", "compute_scene"),
     "detections (centroid/pixel)": ("centroid.py", "simulate_detections"),
     "tracker (identify/predict/match/Wahba)": ("sensor.py", "_run_frame"),

@@ -9,7 +9,7 @@ from gymnasium import spaces
 from envs.avionics import Avionics, AvionicsConfig, TRACKER_MODES
 from envs.faults import Fault, FaultSchedule, random_fault_schedule
 from envs.spacecraft import Spacecraft
-from startracker.rotations import quat_from_rotvec, quat_multiply, quat_normalize, quat_random
+from startracker.rotations import quat_from_rotvec, quat_integrate, quat_multiply, quat_normalize, quat_random
 from startracker.kernels import rotations as rk
 
 __all__ = ["AgileSlewEnv"]
@@ -231,6 +231,7 @@ class AgileSlewEnv(gym.Env):
         self.observation_space = spaces.Box(low=low, high=high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (nw,), dtype=np.float32)
         self._q_target = np.array([1.0, 0.0, 0.0, 0.0])
+        self._disturbance_world = np.zeros(3)
         self._settled_s = 0.0
         self._last_info: dict = {}
 
@@ -285,7 +286,12 @@ class AgileSlewEnv(gym.Env):
             faults = [Fault.from_dict(f) for f in options["faults"]]
         if self.random_faults_per_min > 0:
             faults += list(random_fault_schedule(rng, self.max_episode_s, self.random_faults_per_min).faults)
-        self.avionics.reset(self.spacecraft, rng, FaultSchedule(faults))
+        # The first frame is exposed while the spacecraft sits at its initial attitude (at rest or drifting slowly):
+        # the truth over it comes from integrating the initial rate, without stepping the episode's clock.
+        t = self.spacecraft.time_s
+        t_pre = np.linspace(t - self.avionics.config.frame_period_s, t, 11)
+        q_pre = quat_integrate(self.spacecraft.q_body_to_icrs, self.spacecraft.omega_body, t_pre - t)
+        self.avionics.reset(rng, FaultSchedule(faults), first_frame_truth=(t_pre, q_pre))
         obs = self._observation()
         info = self._info(reward_terms=(0.0, 0.0, 0.0))
         return obs, info
@@ -298,7 +304,11 @@ class AgileSlewEnv(gym.Env):
             raise ValueError("action contains NaN or inf")
         a = np.clip(a, -1.0, 1.0)
         self.spacecraft.apply_wheel_torque(a * self.spacecraft.wheel_max_torque_Nm)
-        self.avionics.advance(self.spacecraft, self.control_period_s, self.np_random)
+        # the env steps the physics and records the truth; the avionics observe it
+        dt_gyro = self.avionics.gyro_period_s
+        t0, q0 = self.spacecraft.time_s, self.spacecraft.q_body_to_icrs
+        t_rec, q_rec = self.spacecraft.step_recording(dt_gyro, int(round(self.control_period_s / dt_gyro)))
+        self.avionics.observe(np.concatenate([[t0], t_rec]), np.concatenate([q0[None, :], q_rec]), self.np_random)
 
         q_true = self.spacecraft.q_body_to_icrs
         err = float(rk.quat_angle_between(q_true, self._q_target))  # quat_angle_between on own float64 state

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from startracker.centroid import Centroids
+from startracker.head import Centroids
 
 __all__ = ["Fault", "FaultSchedule", "FAULT_KINDS", "random_fault_schedule"]
 

@@ -529,14 +529,37 @@ class Spacecraft:
             data.ctrl[:] = ctrl
             mujoco.mj_step(m, data)
 
-    def _step_recording(self, duration_s: float, n_steps: int, times_out: np.ndarray, quats_out: np.ndarray) -> None:
-        """``n_steps`` calls of :meth:`step` (``duration_s`` one substep each), writing the time and the attitude
-        after each into ``times_out[k]`` and ``quats_out[k]`` (the avionics' truth history).
+    def step_recording(self, substep_s: float, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate ``n_steps`` substeps of ``substep_s`` with the held commands, recording the truth history.
 
-        The fast path of :meth:`step` is decided once for the whole span (its bound with the horizon of all
-        ``n_steps``); when it holds, no wheel limit can engage and each substep is the same ``mj_step`` that
-        :meth:`step` would run. Otherwise every substep goes through :meth:`step`.
+        Equal to ``n_steps`` calls of :meth:`step` (``substep_s`` each), reading :attr:`time_s` and
+        :attr:`q_body_to_icrs` after each. The fast path of :meth:`step` is decided once for the whole span
+        (its bound with the horizon of all ``n_steps``); when it holds, no wheel limit can engage and each
+        substep is the same ``mj_step`` that :meth:`step` would run. Otherwise every substep goes through
+        :meth:`step`.
+
+        Parameters
+        ----------
+        substep_s : float
+            Duration of one recorded substep, s: a positive multiple of :attr:`timestep_s`.
+        n_steps : int
+            Number of substeps (>= 1).
+
+        Returns
+        -------
+        times_s : ndarray, shape (n_steps,)
+            Time after each substep, s.
+        q_body_to_icrs : ndarray, shape (n_steps, 4)
+            True attitude after each substep (w, x, y, z).
         """
+        if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
+            raise ValueError(f"n_steps must be an integer >= 1, got {n_steps!r}")
+        n_steps = int(n_steps)
+        duration_s = float(substep_s)
+        if not (math.isfinite(duration_s) and duration_s > 0.0):
+            raise ValueError(f"substep_s must be a positive finite number, got {substep_s!r}")
+        times_out = np.empty(n_steps)
+        quats_out = np.empty((n_steps, 4))
         data, m = self.data, self.model
         speeds = data.qvel[self._sl_wv].tolist()
         tau = self._torque_cmd.tolist()
@@ -558,11 +581,12 @@ class Spacecraft:
                 mujoco.mj_step(m, data)
                 times_out[k] = data.time
                 quats_out[k] = data.qpos[sl]
-            return
+            return times_out, quats_out
         for k in range(n_steps):
             self.step(duration_s)
             times_out[k] = data.time
             quats_out[k] = data.qpos[sl]
+        return times_out, quats_out
 
     # ------------------------------------------------------------------ snapshots and pickling
     @property

@@ -29,13 +29,8 @@ class UsageError(Exception):
 
 def _choices():
     """Names the env accepts, from the modules that define them."""
-    from envs.avionics import IDENTIFY_METHODS, MATCHERS
-
-    try:
-        from startracker.head import HEAD_CAMERAS
-    except ImportError:
-        from envs.camera_head import HEAD_CAMERAS
     from startracker.imu import GYRO_GRADES
+    from startracker.onboard import HEAD_CAMERAS, IDENTIFY_METHODS, MATCHERS
 
     return {
         "camera": tuple(HEAD_CAMERAS), "fidelity": ("centroid", "pixel"), "matcher": tuple(MATCHERS),

@@ -54,11 +54,16 @@ from scipy.linalg.lapack import dposv
 
 from startracker.validation import as_float_array, check_positive
 
-__all__ = ["AttitudeEKF"]
+__all__ = ["AttitudeEKF", "ARW_FLOOR_RAD_SQRT_S", "BIAS_SIGMA_FLOOR_RAD_S"]
 
 _I6 = np.eye(6)
 _AUTO_BATCH_MIN_SAMPLES = 8  # measured break-even of the batch path's fixed cost
 _H = np.hstack([np.eye(3), np.zeros((3, 3))])
+
+
+# Floors of :meth:`AttitudeEKF.from_gyro_spec`
+ARW_FLOOR_RAD_SQRT_S = 1e-7
+BIAS_SIGMA_FLOOR_RAD_S = 1e-7
 
 
 def _hjacobian(_x):
@@ -307,19 +312,62 @@ class AttitudeEKF:
         self.ekf.Q = np.zeros((6, 6))
 
     @classmethod
-    def from_gyro_spec(cls, spec, q_body_to_icrs, **kwargs) -> "AttitudeEKF":
-        """Filter tuned to a :class:`startracker.imu.GyroSpec` (ARW, bias random walk, initial bias 1σ).
+    def from_gyro_spec(
+        cls,
+        spec,
+        q_body_to_icrs,
+        *,
+        arw_floor_rad_sqrt_s: float = ARW_FLOOR_RAD_SQRT_S,
+        bias_sigma_floor_rad_s: float = BIAS_SIGMA_FLOOR_RAD_S,
+        **kwargs,
+    ) -> "AttitudeEKF":
+        """Filter tuned to a :class:`startracker.imu.GyroSpec`: the one way to build the filter for a gyro.
 
-        Keyword arguments override the derived values (``sigma_bias_rad_s`` defaults to the root sum
-        square of the turn-on and Gauss-Markov bias σ, with a floor of 1e-9 rad/s).
+        Derived values: ``arw_rad_sqrt_s = max(spec.arw_rad_sqrt_s, arw_floor_rad_sqrt_s)``;
+        ``rrw_rad_s_sqrt_s = spec.bias_rw_equivalent_rad_s_sqrt_s``; ``sigma_bias_rad_s = max(spec.bias_sigma_rad_s
+        + spec.gm_sigma_rad_s, bias_sigma_floor_rad_s)`` (the sum of the turn-on and Gauss-Markov σ: an initial σ
+        too large only slows convergence, one too small makes the filter ignore the gyro's real bias).
+
+        Parameters
+        ----------
+        spec : startracker.imu.GyroSpec
+        q_body_to_icrs : array_like, shape (4,)
+            Initial attitude estimate.
+        arw_floor_rad_sqrt_s : float
+            Smallest angle random walk the filter assumes, rad/√s (default 1e-7: an ideal gyro still leaves the
+            filter some process noise, so it keeps listening to the star tracker).
+        bias_sigma_floor_rad_s : float
+            Smallest initial bias 1σ, rad/s (default 1e-7).
+        **kwargs
+            Any argument of :class:`AttitudeEKF` (``sigma_attitude_rad``, ``t_s``, ``gate_chi2``, ``bias_rad_s``,
+            ...); ``arw_rad_sqrt_s``, ``rrw_rad_s_sqrt_s`` and ``sigma_bias_rad_s`` override the derived values.
+
+        Returns
+        -------
+        AttitudeEKF
         """
+        arw_floor = check_positive(arw_floor_rad_sqrt_s, "arw_floor_rad_sqrt_s")
+        bias_floor = check_positive(bias_sigma_floor_rad_s, "bias_sigma_floor_rad_s")
         kw = dict(
-            arw_rad_sqrt_s=max(spec.arw_rad_sqrt_s, 1e-12),
+            arw_rad_sqrt_s=max(spec.arw_rad_sqrt_s, arw_floor),
             rrw_rad_s_sqrt_s=spec.bias_rw_equivalent_rad_s_sqrt_s,
-            sigma_bias_rad_s=max(math.hypot(spec.bias_sigma_rad_s, spec.gm_sigma_rad_s), 1e-9),
+            sigma_bias_rad_s=max(spec.bias_sigma_rad_s + spec.gm_sigma_rad_s, bias_floor),
         )
         kw.update(kwargs)
         return cls(q_body_to_icrs, **kw)
+
+    def set_bias_covariance(self, covariance_rad2_s2) -> None:
+        """Replace the bias block of the error covariance (e.g. to let the filter relearn a bias that jumped).
+
+        The attitude block is kept; the attitude-bias cross-covariance is kept too (zero right after
+        construction).
+
+        Parameters
+        ----------
+        covariance_rad2_s2 : array_like, shape (3, 3)
+            New bias covariance, (rad/s)², symmetric positive definite.
+        """
+        self.ekf.P[3:, 3:] = self._check_cov(covariance_rad2_s2, "covariance_rad2_s2")
 
     # ------------------------------------------------------------------ views
     @property

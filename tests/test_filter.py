@@ -346,3 +346,45 @@ def test_bad_input():
     # nothing was changed by the rejected calls
     assert f.t_s == 1.0 and f.n_updates == 0
     np.testing.assert_array_equal(f.q_body_to_icrs, [1, 0, 0, 0])
+
+
+def test_from_gyro_spec_derives_the_tuning_with_its_floors():
+    """The one constructor for a gyro: ARW and bias σ from the spec, floored so an ideal gyro still leaves the
+    filter process noise and an initial bias uncertainty."""
+    from startracker.filter import ARW_FLOOR_RAD_SQRT_S, BIAS_SIGMA_FLOOR_RAD_S
+    from startracker.imu import gyro_preset
+
+    tact = gyro_preset("tactical", rate_hz=100.0)
+    f = AttitudeEKF.from_gyro_spec(tact, [1, 0, 0, 0], sigma_attitude_rad=1e-4)
+    assert f.sigma_v == tact.arw_rad_sqrt_s and f.sigma_u == tact.bias_rw_equivalent_rad_s_sqrt_s
+    assert np.allclose(f.bias_sigma_rad_s, tact.bias_sigma_rad_s + tact.gm_sigma_rad_s, rtol=1e-15)
+    assert np.allclose(f.attitude_sigma_rad, 1e-4, rtol=1e-15)
+    ideal = AttitudeEKF.from_gyro_spec(gyro_preset("ideal", rate_hz=100.0), [1, 0, 0, 0])
+    assert ideal.sigma_v == ARW_FLOOR_RAD_SQRT_S == 1e-7
+    assert np.allclose(ideal.bias_sigma_rad_s, BIAS_SIGMA_FLOOR_RAD_S, rtol=1e-15)
+    # an explicit value overrides the derived one; bad floors are refused
+    assert AttitudeEKF.from_gyro_spec(tact, [1, 0, 0, 0], arw_rad_sqrt_s=3e-6).sigma_v == 3e-6
+    with pytest.raises(ValueError, match="arw_floor_rad_sqrt_s"):
+        AttitudeEKF.from_gyro_spec(tact, [1, 0, 0, 0], arw_floor_rad_sqrt_s=0.0)
+
+
+def test_set_bias_covariance_replaces_the_bias_block_only():
+    f = AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=1e-5, sigma_attitude_rad=1e-4, sigma_bias_rad_s=1e-6)
+    f.propagate([0.01, 0.0, 0.0], 1.0)  # builds attitude-bias cross-covariance
+    before = f.P.copy()
+    p_bb = np.diag([1e-8, 2e-8, 3e-8])
+    f.set_bias_covariance(p_bb)
+    assert np.array_equal(f.P[3:, 3:], p_bb)
+    assert np.array_equal(f.P[:3, :], before[:3, :]) and np.array_equal(f.P[3:, :3], before[3:, :3])
+    assert np.allclose(f.bias_sigma_rad_s, np.sqrt([1e-8, 2e-8, 3e-8]))
+    # the filter uses it: coasting dt at zero rate adds P_bb dt² to the attitude block (Φ12 = -dt I), so two
+    # filters differing only in P_bb differ by exactly that
+    g = AttitudeEKF([1, 0, 0, 0], arw_rad_sqrt_s=1e-5, sigma_attitude_rad=1e-4, sigma_bias_rad_s=1e-6)
+    g.propagate([0.01, 0.0, 0.0], 1.0)
+    g_bb = g.P[3:, 3:].copy()
+    f.propagate(f.bias_rad_s, 2.0)
+    g.propagate(g.bias_rad_s, 2.0)
+    assert np.allclose(f.P[:3, :3] - g.P[:3, :3], (p_bb - g_bb) * 4.0, rtol=1e-9, atol=1e-20)
+    for bad in (-np.eye(3), np.ones((3, 3)), np.eye(2)):
+        with pytest.raises(ValueError, match="covariance_rad2_s2"):
+            f.set_bias_covariance(bad)

@@ -1,4 +1,5 @@
-"""startracker must not depend on envs or policies; envs must not depend on policies (DESIGN.md §1)."""
+"""The import direction of docs/design.md ("Layout"): startracker never imports envs, policies or experiments;
+envs never imports policies or experiments; inside startracker, each room imports only the rooms below it."""
 
 import ast
 from pathlib import Path
@@ -41,23 +42,26 @@ def test_import_direction(package, forbidden):
 #   tracker   sensor (identify + track), head (camera heads: pixels, centroid, color)
 #   subsystems  color (3CMOS, paper 004), multifov (distributed FoVs, paper 001): they use the rooms
 #             below; only sensor-level code (head, sensor) may import them, and neither imports the other
+#   unit      onboard (heads + trackers + gyro + EKF observing a truth history: what the env runs)
 #   helpers   simulation (synthetic frames for tests and benchmarks): no room imports it
-ABOVE_DATA = {"scene", "imaging", "centroid", "identify", "track", "sensor", "head", "color", "multifov", "simulation"}
+ABOVE_DATA = {"scene", "imaging", "centroid", "identify", "track", "sensor", "head", "color", "multifov", "simulation",
+              "onboard"}
 SUBSYSTEMS = {"color", "multifov"}
-SENSOR_LEVEL = {"head", "sensor"}
+SENSOR_LEVEL = {"head", "sensor", "onboard"}
 FORBIDDEN = {
     **{room: ABOVE_DATA for room in ("rotations", "validation", "kernels", "cache", "catalog", "optics",
                                      "photometry", "kvector", "imu", "attitude", "filter")},
     "scene": ABOVE_DATA - {"scene"},
-    "imaging": {"centroid", "identify", "track", "sensor", "head", "simulation"} | SUBSYSTEMS,
-    "centroid": {"identify", "track", "sensor", "head", "simulation"} | SUBSYSTEMS,
-    "identify": {"imaging", "centroid", "track", "sensor", "head", "simulation"} | SUBSYSTEMS,
-    "track": {"imaging", "centroid", "identify", "sensor", "head", "simulation"} | SUBSYSTEMS,
-    "sensor": {"head", "simulation"},
-    "head": {"sensor", "simulation"},
-    "color": {"multifov", "sensor", "head", "simulation"},
-    "multifov": {"color", "sensor", "head", "simulation"},
-    "simulation": {"sensor", "head"} | SUBSYSTEMS,
+    "imaging": {"centroid", "identify", "track", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,
+    "centroid": {"identify", "track", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,
+    "identify": {"imaging", "centroid", "track", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,
+    "track": {"imaging", "centroid", "identify", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,
+    "sensor": {"head", "simulation", "onboard"},
+    "head": {"sensor", "simulation", "onboard"},
+    "color": {"multifov", "sensor", "head", "simulation", "onboard"},
+    "multifov": {"color", "sensor", "head", "simulation", "onboard"},
+    "simulation": {"sensor", "head", "onboard"} | SUBSYSTEMS,
+    "onboard": {"simulation"},
 }
 # Modules of a subsystem or split room must not reach into each other's private names either.
 SPLIT_ROOMS = ("imaging", "centroid", "color", "multifov", "simulation")
@@ -132,3 +136,60 @@ def test_split_rooms_share_only_public_names():
                 if target in SPLIT_ROOMS:
                     bad += [(str(path.relative_to(ROOT)), target, n) for n in names if n.startswith("_")]
     assert bad == []
+
+
+# What envs/ may import from startracker: the entry points of the sensor (heads, the onboard unit, the tracker
+# state machine, the filter), rotations (the env computes attitude errors and the first frame's truth), the
+# catalog and gyro presets, and the input-check module (the spacecraft validates its arguments with it). The
+# camera simulation (scene, imaging, centroid, colour, optics) and the tracker's internals stay behind these.
+ENVS_ALLOWED_STARTRACKER = {
+    "startracker.head",
+    "startracker.onboard",
+    "startracker.sensor",
+    "startracker.filter",
+    "startracker.rotations",
+    "startracker.kernels.rotations",
+    "startracker.catalog",
+    "startracker.imu",
+    "startracker.validation",
+}
+ENVS_ALLOWED_OTHER = {"envs", "numpy", "gymnasium", "mujoco"}
+
+
+def envs_import_violations(sources):
+    """(file, imported name) pairs of ``sources`` ({name: python source}) breaking the envs import rule."""
+    import sys
+
+    bad = []
+    for name, text in sources.items():
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.Import):
+                targets = [(a.name, None) for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                targets = [(node.module, a.name) for a in node.names]
+            else:
+                continue
+            for module, member in targets:
+                top = module.split(".")[0]
+                if member is not None and member.startswith("_") and module != "__future__":
+                    bad.append((name, f"{module}.{member}"))  # a private name
+                elif top == "startracker":
+                    full = module if member is None else f"{module}.{member}"
+                    if module not in ENVS_ALLOWED_STARTRACKER and full not in ENVS_ALLOWED_STARTRACKER:
+                        bad.append((name, full))
+                elif top not in ENVS_ALLOWED_OTHER and top not in sys.stdlib_module_names:
+                    bad.append((name, module))
+    return bad
+
+
+def test_envs_imports_only_entry_points():
+    sources = {str(p.relative_to(ROOT)): p.read_text() for p in (ROOT / "envs").rglob("*.py") if p.name != "__main__.py"}
+    assert len(sources) >= 4
+    assert envs_import_violations(sources) == []
+    # the rule bites: the camera simulation, a private name, or a module outside the entry points
+    assert envs_import_violations({"x.py": "from startracker.scene import compute_scene"}) == [
+        ("x.py", "startracker.scene.compute_scene")]
+    assert envs_import_violations({"x.py": "from startracker.onboard import _empty_stats"}) != []
+    assert envs_import_violations({"x.py": "import startracker.centroid"}) != []
+    assert envs_import_violations({"x.py": "from startracker import imaging"}) != []
+    assert envs_import_violations({"x.py": "from startracker.kernels import rotations as rk"}) == []

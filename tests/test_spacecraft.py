@@ -246,3 +246,26 @@ def test_bearing_friction_decelerates_wheel_as_coulomb_plus_viscous():
     sc.set_state([1, 0, 0, 0], [0, 0, 0], [0.05, 0.0, 0.0])
     sc.step(1.0)
     assert abs(sc.wheel_speeds_rad_s[0]) < 1e-6
+
+
+def test_step_recording_equals_stepping_and_reading():
+    """The truth history the env hands to the avionics: the same states as step() then reading, bit for bit,
+    on the fast path and when a wheel hits its speed limit."""
+    for torque, speed0 in ((0.05, 0.0), (0.5, 595.0)):
+        a, b = Spacecraft(), Spacecraft()
+        for sc in (a, b):
+            sc.set_state([0.9, 0.1, -0.2, 0.3], [0.01, -0.02, 0.03], np.full(4, speed0), time_s=1.0)
+            sc.apply_wheel_torque(np.full(4, torque))
+        t_rec, q_rec = a.step_recording(0.01, 10)
+        t_ref, q_ref = [], []
+        for _ in range(10):
+            b.step(0.01)
+            t_ref.append(b.time_s)
+            q_ref.append(b.q_body_to_icrs)
+        assert np.array_equal(t_rec, t_ref) and np.array_equal(q_rec, q_ref)
+        assert np.array_equal(a.get_state(), b.get_state())
+        assert t_rec.shape == (10,) and q_rec.shape == (10, 4) and np.isclose(t_rec[-1], 1.1)
+    with pytest.raises(ValueError, match="n_steps"):
+        a.step_recording(0.01, 0)
+    with pytest.raises(ValueError, match="substep_s"):
+        a.step_recording(-0.01, 3)

@@ -1,8 +1,28 @@
-"""Camera heads as the env sees them: truth in, detections out, and a picture when someone looks.
+"""Camera heads: the true attitude history in, detections and the scene out, and a picture when someone looks.
+
+A head is one optical unit of the star tracker: optics (:class:`startracker.optics.Camera`, with its mounting
+``q_cam_to_body``), detector (:class:`startracker.imaging.SensorModel`) and the exposure time it is run with. Given
+the catalog, the truth history ``(t_s (S,), q_body_to_icrs (S, 4))`` that covers a frame, the frame's exposure plan
+and a random generator, :meth:`MonoHead.detections` returns what the detector reports (``fidelity="centroid"``:
+drawn from the scene truth with the pixel path's error model; ``"pixel"``: sparse rendering and centroiding) and
+the scene it imaged; :meth:`MonoHead.render` draws the full picture of that scene (only when someone looks).
 
 ``MonoHead``: one detector (paper 000's intensified camera, ZY-3, ...). ``ColorHead``: paper 004's 3CMOS prism
 camera: three channel scenes, per-channel detections, registered onto green with the calibration of paper 004 §3
 (done once, on the ground: a simulated rotary table with a fixed seed) and fused at centroid level.
+
+Example
+-------
+>>> import numpy as np
+>>> from startracker.catalog import load_catalog
+>>> from startracker.head import make_head
+>>> from startracker.scene import ExposurePlan
+>>> head = make_head("paper000")
+>>> t = np.linspace(0.0, 0.1, 11); q = np.tile([1.0, 0.0, 0.0, 0.0], (11, 1))
+>>> det, scene = head.detections(load_catalog(6.0), (t, q), ExposurePlan(n_exposures=1, exposure_s=1e-3, frame_period_s=0.1), 0.0,
+...                              np.random.default_rng(0))
+>>> det.xy.shape[1]
+2
 """
 
 from __future__ import annotations
@@ -14,7 +34,7 @@ from startracker.imaging import SensorModel, render_frame
 from startracker.optics import camera_preset
 from startracker.scene import compute_scene
 
-__all__ = ["MonoHead", "ColorHead", "make_head", "HEAD_CAMERAS"]
+__all__ = ["MonoHead", "ColorHead", "make_head", "HEAD_CAMERAS", "Centroids"]
 
 HEAD_CAMERAS = ("paper000", "zy3", "paper003", "paper004", "paper004_3cmos")
 CALIBRATION_SEED = 2024  # the ground calibration of the 3CMOS head (a property of the unit, not of an episode)
@@ -48,12 +68,23 @@ def _mark(rgb: np.ndarray, xy, color=(0, 255, 0), half: int = 6) -> np.ndarray:
 
 
 class MonoHead:
-    """One monochrome detector.
+    """One monochrome detector (paper 000's intensified sensor model) behind a preset camera.
 
     Parameters
     ----------
     camera_name : str
-        A preset of :func:`startracker.optics.camera_preset`.
+        A preset of :func:`startracker.optics.camera_preset` (``"paper000"``, ``"zy3"``, ...).
+    q_cam_to_body : array_like, shape (4,)
+        Mounting of the camera in the body frame (w, x, y, z). Default: boresight along body +z.
+
+    Attributes
+    ----------
+    camera : startracker.optics.Camera
+    sensor_model : startracker.imaging.SensorModel
+    exposure_s : float
+        Exposure time of a multi-exposure frame, s (1 ms: intensified, V = 6 in a millisecond).
+    is_color : bool
+        False.
     """
 
     is_color = False
@@ -64,12 +95,45 @@ class MonoHead:
         self.sensor_model = SensorModel.preset("paper000")
         self.exposure_s = 1.0e-3  # intensified: millisecond exposures see V = 6
 
-    def detections(self, catalog, truth, plan, t_frame, rng, fidelity, bright_bodies=()):
+    def detections(self, catalog, truth, plan, t_frame, rng, fidelity="centroid", bright_bodies=()):
+        """Image one frame of the truth history and detect its stars.
+
+        Parameters
+        ----------
+        catalog : startracker.catalog.StarCatalog
+            Stars to image.
+        truth : tuple (t_s (S,), q_body_to_icrs (S, 4)) or callable
+            True attitude history covering the frame's exposures (s; w, x, y, z), interpolated by slerp; or
+            ``truth(t) -> (len(t), 4)``.
+        plan : startracker.scene.ExposurePlan
+            Exposures of the frame.
+        t_frame : float
+            Frame start, s.
+        rng : numpy.random.Generator
+            Every noise draw of the detections.
+        fidelity : {"centroid", "pixel"}
+            Where detections come from (see the module docstring).
+        bright_bodies : sequence of startracker.scene.BrightBody
+            Stray-light sources in the scene.
+
+        Returns
+        -------
+        det : Centroids
+            Detections: ``det.xy`` (K, 2) px, ``det.intensity`` (K,), with truth labels.
+        scene : startracker.scene.Scene
+            What was imaged (for :meth:`render`).
+        """
         scene = compute_scene(self.camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies)
         det = simulate_detections(scene, self.sensor_model, rng, fidelity=fidelity)
-        return det, det.intensity, scene
+        return det, scene
 
     def render(self, scene, det) -> np.ndarray:
+        """The full frame of ``scene`` (fixed-seed noise) with the detections ``det`` boxed.
+
+        Returns
+        -------
+        ndarray of uint8, shape (rows, cols, 3)
+        """
         image = render_frame(scene, self.sensor_model, np.random.default_rng(0))
         rgb = _to_rgb(np.stack([image] * 3))
         return _mark(rgb, det.xy)
@@ -83,13 +147,31 @@ class MonoHead:
 
 
 class ColorHead:
-    """Paper 004's 3CMOS head: red, green, blue detectors registered onto green."""
+    """Paper 004's 3CMOS head: red, green, blue detectors registered onto green and fused at centroid level.
+
+    Parameters
+    ----------
+    camera_name : str
+        ``"paper004_3cmos"``.
+
+    Attributes
+    ----------
+    color_camera : startracker.color.ColorCamera
+    camera : startracker.optics.Camera
+        The green channel's camera (the registration target): the tracker's camera.
+    sensor_model : startracker.imaging.SensorModel
+    exposure_s : float
+        Exposure time of a multi-exposure frame, s (10 ms: plain CMOS).
+    registration : startracker.color.ColorRegistration
+        Ground calibration (seed ``CALIBRATION_SEED``).
+    is_color : bool
+        True.
+    """
 
     is_color = True
 
     def __init__(self, camera_name: str = "paper004_3cmos"):
-        from startracker.color import ColorCamera, paper004_sensor_model
-        from startracker.color.registration import ColorRegistration, generate_rotary_table_data
+        from startracker.color import ColorCamera, ColorRegistration, generate_rotary_table_data, paper004_sensor_model
 
         self.camera_name = camera_name
         self.color_camera = ColorCamera.paper004(translation="table2")
@@ -99,7 +181,9 @@ class ColorHead:
         rng = np.random.default_rng(CALIBRATION_SEED)
         self.registration = ColorRegistration.calibrate(generate_rotary_table_data(self.color_camera, rng), rng=rng)
 
-    def detections(self, catalog, truth, plan, t_frame, rng, fidelity, bright_bodies=()):
+    def detections(self, catalog, truth, plan, t_frame, rng, fidelity="centroid", bright_bodies=()):
+        """As :meth:`MonoHead.detections`; ``scene`` is the list of the three channel scenes (red, green, blue)
+        and ``det`` the fused detections in green-channel pixels (intensity: the sum over the channels)."""
         from startracker.color import channel_scenes, fuse_channel_centroids
 
         scenes = channel_scenes(self.color_camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies)
@@ -108,7 +192,7 @@ class ColorHead:
         n = len(fused)
         total = fused.total_intensity
         det = Centroids(fused.xy, total, np.full(n, 1, dtype=np.int64), np.zeros(n, dtype=bool), total, total)
-        return det, total, scenes
+        return det, scenes
 
     def render(self, scenes, det) -> np.ndarray:
         """The three channels, each registered onto green, as one colour picture (red, green, blue)."""
@@ -129,7 +213,19 @@ class ColorHead:
 
 
 def make_head(camera_name: str, q_cam_to_body=(1.0, 0.0, 0.0, 0.0)):
-    """The head for a camera name of :data:`HEAD_CAMERAS`, mounted with ``q_cam_to_body`` (monochrome heads)."""
+    """The head for a camera name of :data:`HEAD_CAMERAS`.
+
+    Parameters
+    ----------
+    camera_name : str
+        One of :data:`HEAD_CAMERAS`; ``"paper004_3cmos"`` gives a :class:`ColorHead`, the others a :class:`MonoHead`.
+    q_cam_to_body : array_like, shape (4,)
+        Mounting (monochrome heads; the colour head is mounted along body +z).
+
+    Returns
+    -------
+    MonoHead or ColorHead
+    """
     if camera_name not in HEAD_CAMERAS:
         raise ValueError(f"camera must be one of {HEAD_CAMERAS}, got {camera_name!r}")
     return ColorHead(camera_name) if camera_name == "paper004_3cmos" else MonoHead(camera_name, q_cam_to_body)

@@ -1,0 +1,697 @@
+"""The onboard unit: camera heads, star trackers, a gyro and the attitude EKF observing a truth history.
+
+:class:`StarTrackerUnit` is everything a spacecraft carries to know its attitude. It is handed the *true*
+attitude history (``t_s (G+1,)``, ``q_body_to_icrs (G+1, 4)``) of a span of time and observes it; it never
+integrates physics, so the history may come from a simulator (the env's MuJoCo spacecraft) or from a user's
+own trajectory (:func:`run_star_tracker`).
+
+Timeline of one observed span ``[t0, t1]`` (:meth:`StarTrackerUnit.observe`):
+
+1. Each interval of the history yields one gyro sample: the average true rate over the interval (from the
+   quaternion increment) plus the gyro's errors. The history's instants are the gyro's sample instants.
+2. Each camera frame ``[tf, tf + T]`` inside the span is imaged from the history by every head
+   (:meth:`StarTrackerUnit.process_frame`): an exposure plan (single while the tracker is lost, multi-exposure
+   with N chosen from the *gyro* rate while tracking), the scene, detections (centroid or pixel fidelity), then
+   the :class:`startracker.sensor.StarTracker` state machine, which returns up to N attitude samples stamped with
+   their exposure instants.
+3. The EKF replays the span: gyro samples and attitude samples in time order
+   (:meth:`startracker.filter.AttitudeEKF.process`). A frame's result is used as soon as the frame ends;
+   processing delay is not simulated (the measured matching latency is reported only).
+
+Fault hooks: ``faults`` (e.g. ``envs.faults.FaultSchedule``) is any object, true when it holds faults, with
+``frame_dropped(t)``, ``sun_direction_world(t, boresight_icrs, rng)`` (unit vector or None),
+``blinded_heads(t)`` (set of head indices), ``timestamp_error_s(t, rng)``, ``modify_detections(det, t, rng,
+resolution)``, ``modify_gyro(omega (G, 3), times (G,), rng)`` and ``active_kinds(t0, t1)``.
+
+Everything random draws from the caller's generator; wall-clock latencies are reported only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from startracker.catalog import StarCatalog, load_catalog
+from startracker.filter import AttitudeEKF
+from startracker.head import HEAD_CAMERAS, make_head
+from startracker.imu import GYRO_GRADES, Gyro, gyro_preset
+from startracker.kernels import rotations as rk
+from startracker.multifov import MultiFovSensor
+from startracker.rotations import quat_conjugate, quat_integrate, quat_interpolate, quat_rotate
+from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
+from startracker.sensor import MODES, AttitudeSample, StarTracker
+from startracker.validation import as_float_array, check_rng
+
+__all__ = [
+    "StarTrackerUnit",
+    "UnitConfig",
+    "Estimate",
+    "EstimateHistory",
+    "count_wrong_samples",
+    "run_star_tracker",
+    "IDENTIFY_METHODS",
+    "MATCHERS",
+    "GYRO_GRADES",
+    "HEAD_CAMERAS",
+    "MODES",
+]
+
+IDENTIFY_METHODS = ("pyramid", "voting", "brightness", "string")
+MATCHERS = ("dkvlut", "brute", "kdtree")
+WRONG_FLOOR_RAD = float(np.radians(20 / 3600))  # a sample is "wrong" beyond max(5σ, 20″)
+RESTART_AFTER_REJECTED_FRAMES = 3
+RESTART_BIAS_SIGMA_RAD_S = float(np.radians(1.0))
+
+
+@dataclass(frozen=True)
+class UnitConfig:
+    """Heads, tracker, gyro and filter settings (validated here).
+
+    Attributes
+    ----------
+    camera : str
+        Head camera, one of :data:`HEAD_CAMERAS`.
+    frame_period_s : float
+        Camera frame period, s (a whole number of gyro samples).
+    exposure_mode : {"single", "multi"}
+    n_exposures : int or "adaptive"
+        N per multi-exposure frame (1 .. ``max_exposures``), or chosen from the gyro rate.
+    exposure_s : float or None
+        Exposure time of a multi-exposure frame, s; default the head's (1 ms intensified, 10 ms plain CMOS).
+    single_exposure_s : float
+        Exposure time of a single-exposure (lost-in-space) frame, s.
+    max_exposures : int
+    identify_method : str
+        One of :data:`IDENTIFY_METHODS`.
+    matcher : str
+        One of :data:`MATCHERS`.
+    fidelity : {"centroid", "pixel"}
+    gyro_grade : str
+        A key of :data:`startracker.imu.GYRO_GRADES`.
+    gyro_rate_hz : float
+        Gyro sample rate, Hz: the truth history handed to :meth:`StarTrackerUnit.observe` is sampled at it.
+    mag_limit : float
+        Catalog limit, V.
+    n_heads : {1, 2}
+        Two heads: paper 001's layout, symmetric about body +z.
+    head_separation_deg : float
+        Angle between the two boresights, ° (10 .. 170).
+    keep_images : bool
+        Keep the last frame's scene and detections for :meth:`StarTrackerUnit.render_last_frame`.
+    """
+
+    camera: str = "paper000"
+    frame_period_s: float = 0.1
+    exposure_mode: str = "multi"
+    n_exposures: int | str = "adaptive"
+    exposure_s: float | None = None
+    single_exposure_s: float = 0.02
+    max_exposures: int = 21
+    identify_method: str = "pyramid"
+    matcher: str = "dkvlut"
+    fidelity: str = "centroid"
+    gyro_grade: str = "tactical"
+    gyro_rate_hz: float = 100.0
+    mag_limit: float = 6.0
+    n_heads: int = 1
+    head_separation_deg: float = 45.0
+    keep_images: bool = False
+
+    def __post_init__(self):
+        if self.camera not in HEAD_CAMERAS:
+            raise ValueError(f"camera must be one of {HEAD_CAMERAS}, got {self.camera!r}")
+        if self.n_heads not in (1, 2) or isinstance(self.n_heads, bool):
+            raise ValueError(f"n_heads must be 1 or 2, got {self.n_heads!r}")
+        if self.n_heads == 2 and self.camera == "paper004_3cmos":
+            raise ValueError("n_heads=2 is available for the monochrome cameras only, not camera='paper004_3cmos'")
+        if not (np.isfinite(self.head_separation_deg) and 10.0 <= self.head_separation_deg <= 170.0):
+            raise ValueError(f"head_separation_deg must be in [10, 170] (heads must not overlap or point the same way), "
+                             f"got {self.head_separation_deg!r}")
+        if self.exposure_mode not in ("single", "multi"):
+            raise ValueError(f"exposure_mode must be 'single' or 'multi', got {self.exposure_mode!r}")
+        n = self.n_exposures
+        if not (n == "adaptive" or (isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= self.max_exposures)):
+            raise ValueError(f"n_exposures must be 'adaptive' or an int in [1, {self.max_exposures}], got {n!r}")
+        if self.identify_method not in IDENTIFY_METHODS:
+            raise ValueError(f"identify_method must be one of {IDENTIFY_METHODS}, got {self.identify_method!r}")
+        if self.matcher not in MATCHERS:
+            raise ValueError(f"matcher must be one of {MATCHERS}, got {self.matcher!r}")
+        if self.fidelity not in ("centroid", "pixel"):
+            raise ValueError(f"fidelity must be 'centroid' or 'pixel', got {self.fidelity!r}")
+        if self.gyro_grade not in GYRO_GRADES:
+            raise ValueError(f"gyro_grade must be one of {sorted(GYRO_GRADES)}, got {self.gyro_grade!r}")
+        steps = self.frame_period_s * self.gyro_rate_hz
+        if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+            raise ValueError("the frame period must be a whole number of gyro samples (gyro_rate_hz * frame period)")
+
+
+@dataclass
+class Estimate:
+    """What the controller may know: the filter's output.
+
+    Attributes
+    ----------
+    q_body_to_icrs : ndarray, shape (4,)
+        Estimated attitude (identity before the first fix).
+    omega_body : ndarray, shape (3,)
+        Estimated body rate, rad/s (the raw gyro rate before the first fix).
+    attitude_sigma_rad : float
+        Largest 1σ attitude uncertainty, rad (π before the first fix).
+    valid : bool
+        False before the first fix.
+    attitude_cov_rad2 : ndarray, shape (3, 3), or None
+        Body-frame attitude covariance, rad²; None before the first fix.
+    """
+
+    q_body_to_icrs: np.ndarray
+    omega_body: np.ndarray
+    attitude_sigma_rad: float
+    valid: bool
+    attitude_cov_rad2: np.ndarray | None = None
+
+
+def count_wrong_samples(samples, time_errors_s, times_s, q_body_to_icrs) -> int:
+    """Attitude samples whose true error exceeds max(5σ, 20″): confident wrong answers.
+
+    σ is the square root of the largest eigenvalue of the sample's covariance. Each sample is judged against the
+    truth at its true exposure instant: an injected timestamp error makes the time tag wrong, not the attitude.
+    Samples outside the truth history are not judged.
+
+    Parameters
+    ----------
+    samples : sequence of startracker.sensor.AttitudeSample
+    time_errors_s : array_like, shape (len(samples),)
+        Timestamp error of each sample (reported minus true exposure instant), s.
+    times_s : ndarray, shape (S,)
+        Truth history instants, s, increasing.
+    q_body_to_icrs : ndarray, shape (S, 4)
+        True attitudes at ``times_s`` (unit, float64).
+
+    Returns
+    -------
+    int
+    """
+    if not samples:
+        return 0
+    t = np.array([s.t_s for s in samples]) - time_errors_s
+    inside = (t >= times_s[0]) & (t <= times_s[-1])
+    if not inside.any():
+        return 0
+    q_true = rk.quat_interpolate(times_s, q_body_to_icrs, t[inside])  # the caller's own float64 truth history
+    q_meas = np.array([s.q_body_to_icrs for s in samples])[inside]
+    err = rk.quat_angle_between(q_true, q_meas)
+    cov = np.array([s.covariance_rad2 for s in samples])[inside]
+    floor = WRONG_FLOOR_RAD
+    # σ² = λ_max lies in [trace/3, trace]: most samples are decided by these bounds without an eigensolver
+    tr = np.trace(cov, axis1=1, axis2=2)
+    sure_wrong = err > np.maximum(5 * np.sqrt(tr * (1 + 1e-9)), floor)
+    sure_right = err <= np.maximum(5 * np.sqrt(tr / 3 * (1 - 1e-9)), floor)
+    undecided = np.flatnonzero(~(sure_wrong | sure_right))
+    if len(undecided):
+        sig = np.sqrt(np.max(np.linalg.eigvalsh(cov[undecided]), axis=-1))
+        sure_wrong[undecided] = err[undecided] > np.maximum(5 * sig, floor)
+    return int(np.sum(sure_wrong))
+
+
+def _empty_stats() -> dict:
+    return dict(
+        update_rate_hz=0.0,
+        matching_latency_ms=0.0,
+        n_stars=0,
+        exposures_per_frame=0,
+        n_attitude_samples=0,
+        lost_lock_events=0,
+        n_wrong_samples=0,
+        filter_restarts=0,
+        faults_active=[],
+    )
+
+
+class StarTrackerUnit:
+    """Camera heads + star trackers + gyro + MEKF observing a true attitude history.
+
+    Parameters
+    ----------
+    config : UnitConfig, optional
+        Default ``UnitConfig()``.
+    catalog : startracker.catalog.StarCatalog, optional
+        Default ``load_catalog(mag_limit=config.mag_limit)``.
+
+    Attributes
+    ----------
+    heads : list of MonoHead or ColorHead
+    trackers : list of startracker.sensor.StarTracker
+        One state machine per head.
+    gyro : startracker.imu.Gyro or None
+        Drawn at :meth:`reset` (its turn-on errors come from the run's generator).
+    ekf : startracker.filter.AttitudeEKF or None
+        None until the first attitude sample.
+    tracker_mode : str
+        "track" while any head tracks, else "acquire" if any acquires, else "lost".
+    last_stats : dict
+        Figures of the last frame (:meth:`process_frame`) or span (:meth:`observe`): ``update_rate_hz``,
+        ``matching_latency_ms``, ``n_stars``, ``exposures_per_frame``, ``n_attitude_samples``, ``lost_lock_events``,
+        ``n_wrong_samples``, ``filter_restarts``, ``faults_active``.
+    last_time_error_s : float
+        Timestamp error injected into the last frame (fault hooks), s.
+    last_samples : list of startracker.sensor.AttitudeSample
+        The star tracker's samples over the last :meth:`observe` span.
+    """
+
+    def __init__(self, config: UnitConfig | None = None, catalog: StarCatalog | None = None):
+        config = UnitConfig() if config is None else config
+        if not isinstance(config, UnitConfig):
+            raise TypeError(f"config must be a UnitConfig, got {type(config).__name__}")
+        if catalog is not None and not isinstance(catalog, StarCatalog):
+            raise TypeError(f"catalog must be a startracker.catalog.StarCatalog, got {type(catalog).__name__}")
+        self.config = config
+        if config.n_heads == 1:
+            self.heads = [make_head(config.camera)]
+        else:
+            # paper 001's layout: two heads symmetric about body +z, boresights head_separation_deg apart
+            base = make_head(config.camera)
+            mounted = MultiFovSensor.two_heads(base.camera, config.head_separation_deg).heads
+            self.heads = [make_head(config.camera, q_cam_to_body=c.q_cam_to_body) for c in mounted]
+        self.head = self.heads[0]
+        self.camera = self.head.camera
+        self.exposure_s = config.exposure_s if config.exposure_s is not None else self.head.exposure_s
+        self.catalog = load_catalog(mag_limit=config.mag_limit) if catalog is None else catalog
+        self.gyro_spec = gyro_preset(config.gyro_grade, rate_hz=config.gyro_rate_hz)
+        self.trackers = [
+            StarTracker(h.camera, self.catalog, identify_method=config.identify_method, matcher=config.matcher)
+            for h in self.heads
+        ]
+        self.tracker = self.trackers[0]
+        self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
+        self.gyro_period_s = 1.0 / config.gyro_rate_hz
+        self.gyro: Gyro | None = None
+        self.faults = None
+        self._clear()
+
+    def _clear(self) -> None:
+        """The state of a unit that has seen nothing: lost, no estimate, no counts."""
+        self.ekf: AttitudeEKF | None = None
+        self.head_modes = ["lost"] * len(self.heads)
+        self.tracker_mode = "lost"
+        self.last_stats = _empty_stats()
+        self.last_time_error_s = 0.0
+        self.last_samples: list[AttitudeSample] = []
+        self._omega_gyro = np.zeros(3)
+        self._last_frame = None
+        self._lost_events = 0
+        self._n_wrong = 0
+        self._rejected_frames = 0
+        self._filter_resets = 0
+        self._t_lock_lost = None
+        self._reacquisition_s: list[float] = []
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, rng: np.random.Generator, faults=None, first_frame_truth=None) -> None:
+        """New run: fresh gyro errors, lost trackers, no estimate; optionally one first frame.
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+        faults : fault hooks, optional
+            See the module docstring.
+        first_frame_truth : tuple (t_s (S,), q_body_to_icrs (S, 4)), optional
+            Truth over a first single-exposure frame taken before the first gyro sample: the frame starts at
+            ``t_s[0]``, and the filter (if it gets a fix) is propagated to ``t_s[-1]`` with zero rate.
+        """
+        self.faults = faults
+        self.gyro = Gyro(self.gyro_spec, rng)
+        for tr in self.trackers:
+            tr.reset()
+        self._clear()
+        if first_frame_truth is None:
+            return
+        t_pre, q_pre = first_frame_truth
+        samples = self.process_frame((t_pre, q_pre), t_pre[0], rng)
+        if samples:
+            self._start_filter(samples[-1], t_pre[-1])
+
+    def _start_filter(self, sample, t_now: float) -> None:
+        """A new filter at ``sample``: its attitude, 3σ of its covariance, propagated to ``t_now``."""
+        sig = float(np.sqrt(np.max(np.linalg.eigvalsh(sample.covariance_rad2))))
+        self.ekf = AttitudeEKF.from_gyro_spec(
+            self.gyro_spec, sample.q_body_to_icrs, sigma_attitude_rad=max(3 * sig, 1e-5), t_s=sample.t_s,
+            gate_chi2=30.0,
+        )
+        if t_now > sample.t_s:
+            self.ekf.propagate(self._omega_gyro, t_now - sample.t_s)
+
+    # ------------------------------------------------------------------ one span of truth
+    def observe(self, times_s, q_body_to_icrs, rng: np.random.Generator, omega_gyro=None) -> None:
+        """Observe a span of the true attitude history: gyro samples, camera frames and the filter over it.
+
+        Parameters
+        ----------
+        times_s : ndarray, shape (G+1,)
+            Instants of the history, s, one gyro period apart: ``times_s[0]`` is the end of the previous span.
+            The span must hold a whole number of frames.
+        q_body_to_icrs : ndarray, shape (G+1, 4)
+            True attitudes at ``times_s`` (unit, float64).
+        rng : numpy.random.Generator
+        omega_gyro : ndarray, shape (G, 3), optional
+            Measured gyro rates over the intervals ``(times_s[k-1], times_s[k]]``, rad/s, bias included: used
+            instead of the unit's simulated gyro (and its gyro faults).
+        """
+        if self.gyro is None:
+            raise RuntimeError("call reset(rng) before observe()")
+        times, quats = times_s, q_body_to_icrs
+        t0 = times[0]
+        n_frames = int(round((times[-1] - t0) / self.config.frame_period_s))
+        duration_s = n_frames * self.config.frame_period_s
+        if omega_gyro is None:
+            # average true rate over each gyro interval, from the quaternion increment (body frame)
+            dq = rk.quat_multiply(quat_conjugate(quats[:-1]), quats[1:])
+            omega_avg = rk.quat_to_rotvec(dq) / np.diff(times)[:, None]
+            omega_meas = self.gyro.measure(omega_avg, rng)
+            if self.faults:
+                omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
+        else:
+            omega_meas = omega_gyro
+        self._omega_gyro = omega_meas[-1].copy()
+
+        samples = []
+        stats = _empty_stats()
+        lat = []
+        offsets = []
+        for f in range(n_frames):
+            tf = t0 + f * self.config.frame_period_s
+            # the gyro reading at the frame's start: the tracker propagates its prediction from frame_time
+            k = min(int(round((tf - t0) / self.gyro_period_s)), len(omega_meas) - 1)
+            new = self.process_frame((times, quats), tf, rng, omega_gyro=omega_meas[k])
+            samples.extend(new)
+            offsets.extend([self.last_time_error_s] * len(new))
+            lat.append(self.last_stats["matching_latency_ms"])
+            stats["n_stars"] = self.last_stats["n_stars"]
+            stats["exposures_per_frame"] = self.last_stats["exposures_per_frame"]
+        stats["matching_latency_ms"] = float(np.mean(lat)) if lat else 0.0
+        stats["filter_restarts"] = self._filter_resets
+        stats["n_attitude_samples"] = len(samples)
+        stats["update_rate_hz"] = len(samples) / duration_s
+        stats["lost_lock_events"] = self._lost_events
+        wrong = count_wrong_samples(samples, np.array(offsets), times, quats)
+        self._n_wrong += wrong
+        stats["n_wrong_samples"] = wrong
+        stats["faults_active"] = self.faults.active_kinds(t0, times[-1]) if self.faults else []
+        self.last_samples = samples
+
+        if self.ekf is None:
+            if samples:
+                first = samples[0]
+                self._start_filter(first, first.t_s)
+                rest = [s for s in samples[1:]]
+                self._filter_span(times, omega_meas, rest, start_index=int(np.searchsorted(times, first.t_s, side="right")))
+        else:
+            self._filter_span(times, omega_meas, samples)
+        self.last_stats = stats
+
+    def _filter_span(self, times, omega_meas, samples, start_index: int = 1) -> None:
+        """Replay gyro intervals ``(times[k-1], times[k]]`` and the attitude samples in time order."""
+        tg = times[start_index:]
+        wg = omega_meas[start_index - 1 :]
+        if len(tg) == 0:
+            return
+        if samples:
+            samples = sorted(samples, key=lambda s: s.t_s)
+            qm = np.array([s.q_body_to_icrs for s in samples])
+            tm = np.array([s.t_s for s in samples])
+            cm = np.array([s.covariance_rad2 for s in samples])
+            keep = tm >= self.ekf.t_s - 1e-12
+            qm, tm, cm = qm[keep], np.maximum(tm[keep], self.ekf.t_s), cm[keep]
+        else:
+            qm, tm, cm = np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3))
+        if tg[0] > self.ekf.t_s - 1e-9 and (len(tm) == 0 or tm[-1] <= tg[-1] + 1e-9):
+            # what ekf.process checks holds by construction (sorted, finite, unit, SPD from Wahba): skip the checks
+            accepted = self.ekf.process(wg, tg, qm / np.linalg.norm(qm, axis=1)[:, None], tm, cm, validate=False)
+        else:
+            accepted = self.ekf.process(wg, tg, qm, tm, cm)
+        # Persistent innovation: the tracker keeps reporting attitudes the filter gates out (a gyro bias jump the
+        # filter does not believe). After three such frames in a row, restart from the tracker, keep the bias
+        # estimate, and open its covariance so the filter can learn the new bias.
+        if len(accepted) and self.tracker_mode == "track":
+            self._rejected_frames = 0 if accepted.any() else self._rejected_frames + 1
+            if self._rejected_frames >= RESTART_AFTER_REJECTED_FRAMES:
+                bias = self.ekf.bias_rad_s.copy()
+                t_end = self.ekf.t_s
+                last = samples[-1]
+                self._start_filter(last, last.t_s)
+                self.ekf.bias_rad_s = bias
+                p_bias = float(np.max(np.diag(self.ekf.P[3:, 3:])))
+                self.ekf.set_bias_covariance(np.eye(3) * max(RESTART_BIAS_SIGMA_RAD_S**2, p_bias))
+                if t_end > self.ekf.t_s:
+                    self.ekf.propagate(self._omega_gyro, t_end - self.ekf.t_s)
+                self._rejected_frames = 0
+                self._filter_resets += 1
+
+    @property
+    def n_wrong_samples_total(self) -> int:
+        """Confident wrong samples (:func:`count_wrong_samples`) since :meth:`reset`."""
+        return self._n_wrong
+
+    @property
+    def reacquisition_times_s(self) -> list[float]:
+        """Time from each loss of lock to the next lock, s."""
+        return list(self._reacquisition_s)
+
+    def _plan_for(self, tracker, camera, omega_hint) -> ExposurePlan:
+        cfg = self.config
+        requested = tracker.requested_n_exposures  # a computed property: evaluate it once
+        if cfg.exposure_mode == "single" or requested == 1:
+            # lost-in-space needs one sharp spot per star: a single exposure centred in the frame
+            return ExposurePlan(n_exposures=1, exposure_s=cfg.single_exposure_s, frame_period_s=cfg.frame_period_s,
+                                start_offset_s=0.5 * (cfg.frame_period_s - cfg.single_exposure_s))
+        if cfg.n_exposures == "adaptive":
+            # N is what the tracker can separate given its prediction (requested_n_exposures) and what the detector
+            # can separate given the smear (the no-overlap rule of the exposure plan): the smaller of the two
+            rate = np.zeros(3) if omega_hint is None else omega_hint
+            n_img = choose_n_exposures(rate, camera, cfg.frame_period_s, self.exposure_s, n_max=cfg.max_exposures)
+            n = max(1, min(n_img, requested))
+        else:
+            n = int(cfg.n_exposures)
+        return ExposurePlan(n_exposures=n, exposure_s=self.exposure_s, frame_period_s=cfg.frame_period_s)
+
+    def _inertial_prior(self, tracker, t_frame: float):
+        """The EKF attitude propagated to the frame, offered to a tracker that is not tracking (inertial aiding),
+        when the filter is confident enough for the tracker's prior check."""
+        if self.ekf is None:
+            return None
+        if float(np.max(self.ekf.attitude_sigma_rad)) > tracker.prior_sigma_rad / 3.0:
+            return None
+        return quat_integrate(self.ekf.q_body_to_icrs, self.ekf.omega_body, t_frame - self.ekf.t_s)
+
+    # ------------------------------------------------------------------ one frame
+    def process_frame(self, truth, t_frame: float, rng: np.random.Generator, omega_gyro=None) -> list[AttitudeSample]:
+        """Image, detect and process one frame on every head, from the truth history; the attitude samples.
+
+        Parameters
+        ----------
+        truth : tuple (t_s (S,), q_body_to_icrs (S, 4))
+            True attitude history covering ``[t_frame, t_frame + frame_period_s]`` (s; unit, float64).
+        t_frame : float
+            Frame start, s.
+        rng : numpy.random.Generator
+        omega_gyro : ndarray, shape (3,), optional
+            Gyro rate at the frame's start, rad/s (chooses N, seeds the tracker's prediction).
+
+        Returns
+        -------
+        list of startracker.sensor.AttitudeSample
+            Samples of all heads, stamped with their exposure instants (plus any injected timestamp error).
+        """
+        cfg = self.config
+        omega_hint = omega_gyro
+        t_mid = t_frame + 0.5 * cfg.frame_period_s
+        self.last_time_error_s = 0.0
+        faults = self.faults
+        if faults and faults.frame_dropped(t_mid):
+            self.last_stats = dict(_empty_stats(), exposures_per_frame=0)
+            return []
+        sun = None
+        blinded = set()
+        if faults:
+            t_s, q_s = truth
+            q_mid = quat_interpolate(t_s, q_s, np.clip(t_mid, t_s[0], t_s[-1]))
+            bore = quat_rotate(q_mid, self.camera.boresight_body())
+            sun = faults.sun_direction_world(t_mid, bore, rng)
+            blinded = faults.blinded_heads(t_mid)
+            self.last_time_error_s = faults.timestamp_error_s(t_mid, rng)
+        prev_mode = self.tracker_mode
+        samples, n_matched, latency, n_exp, frames = [], 0, 0.0, 0, []
+        for k, (head, tracker) in enumerate(zip(self.heads, self.trackers)):
+            plan = self._plan_for(tracker, head.camera, omega_hint)
+            bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
+            det, scene = head.detections(self.catalog, truth, plan, t_frame, rng, cfg.fidelity, bodies)
+            if len(det) and np.any(det.intensity <= 0):
+                det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
+            if faults:
+                det = faults.modify_detections(det, t_mid, rng, head.camera.resolution)
+            if k in blinded:
+                det = det.subset(np.zeros(0, dtype=np.int64))
+            t_exp = plan.exposure_mid_times(t_frame) + self.last_time_error_s
+            prior = self._inertial_prior(tracker, t_frame) if self.head_modes[k] != "track" else None
+            if faults or len(det) == 0 or det.xy.dtype != np.float64 or det.intensity.dtype != np.float64:
+                res = tracker.process_frame(det.xy, det.intensity, t_exp, t_frame, omega_body=omega_hint, q_body_prior=prior)
+            else:  # detections and times built here to process_frame's contract: skip its input checks
+                res = tracker.process_frame(
+                    det.xy, det.intensity, t_exp, float(t_frame), omega_hint,
+                    None if prior is None else rk.quat_normalize(prior), validate=False)
+            self.head_modes[k] = res.mode
+            samples.extend(res.samples)
+            n_matched += int(res.n_matched)
+            latency += float(res.matching_latency_ms)
+            n_exp = max(n_exp, int(plan.n_exposures))
+            frames.append((scene, det))
+        # the sensor tracks while any head tracks
+        self.tracker_mode = next((m for m in ("track", "acquire") if m in self.head_modes), "lost")
+        if prev_mode == "track" and self.tracker_mode != "track":
+            self._lost_events += 1
+            self._t_lock_lost = t_frame
+        if self.tracker_mode == "track" and prev_mode != "track" and self._t_lock_lost is not None:
+            self._reacquisition_s.append(t_frame + cfg.frame_period_s - self._t_lock_lost)
+            self._t_lock_lost = None
+        if cfg.keep_images:
+            self._last_frame = frames[0]
+        self.last_stats = dict(
+            _empty_stats(),
+            matching_latency_ms=latency,
+            n_stars=n_matched,
+            exposures_per_frame=n_exp,
+            n_attitude_samples=len(samples),
+        )
+        return samples
+
+    # ------------------------------------------------------------------ outputs
+    def estimate(self) -> Estimate:
+        """The filter's estimate; before the first fix an invalid one (identity, raw gyro rate, σ = π)."""
+        if self.ekf is None:
+            return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
+        sig = float(np.max(self.ekf.attitude_sigma_rad))
+        return Estimate(self.ekf.q_body_to_icrs.copy(), np.asarray(self.ekf.omega_body, float).copy(), sig, True,
+                        np.array(self.ekf.P[:3, :3], dtype=float))
+
+    def render_last_frame(self) -> np.ndarray | None:
+        """RGB uint8 image (rows, cols, 3) of the last frame of the first head, detections boxed; None before a
+        frame or without ``keep_images``."""
+        if self._last_frame is None:
+            return None
+        scene, det = self._last_frame
+        return self.head.render(scene, det)
+
+
+@dataclass(frozen=True)
+class EstimateHistory:
+    """What :func:`run_star_tracker` returns: the filter's estimate at the end of every frame.
+
+    Attributes
+    ----------
+    t_s : ndarray, shape (F,)
+        End of each frame, s.
+    q_body_to_icrs : ndarray, shape (F, 4)
+        Estimated attitude (identity while ``valid`` is False).
+    attitude_sigma_rad : ndarray, shape (F,)
+        Largest 1σ attitude uncertainty, rad (π while invalid).
+    omega_body : ndarray, shape (F, 3)
+        Estimated body rate, rad/s.
+    valid : ndarray of bool, shape (F,)
+    mode : tuple of str, length F
+        Tracker mode after each frame ("lost", "acquire", "track").
+    n_attitude_samples : ndarray of int, shape (F,)
+        Attitude samples the star tracker produced in each frame.
+    samples : list of startracker.sensor.AttitudeSample
+        Every star-tracker sample, in time order of the frames.
+    """
+
+    t_s: np.ndarray
+    q_body_to_icrs: np.ndarray
+    attitude_sigma_rad: np.ndarray
+    omega_body: np.ndarray
+    valid: np.ndarray
+    mode: tuple
+    n_attitude_samples: np.ndarray
+    samples: list
+
+
+def run_star_tracker(t_s, q_body_to_icrs, *, omega_gyro=None, camera: str = "paper000", rng=None,
+                     catalog: StarCatalog | None = None, **options) -> EstimateHistory:
+    """Run the star tracker and the filter over a trajectory of one's own: truth in, estimate history out.
+
+    Every frame is imaged from the trajectory (slerp between its samples), detected, identified or tracked,
+    and fused with the gyro by the EKF; the unit starts lost.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (T,)
+        Trajectory instants, s, strictly increasing, spanning at least one frame.
+    q_body_to_icrs : array_like, shape (T, 4)
+        True attitude at ``t_s`` (w, x, y, z; normalised here).
+    omega_gyro : array_like, shape (T-1, 3), optional
+        Measured gyro rates over ``(t_s[k-1], t_s[k]]``, rad/s, for uniformly spaced ``t_s`` (the gyro rate is
+        ``1 / (t_s[1] - t_s[0])``). Default: the unit's gyro (``gyro_grade``, ``gyro_rate_hz``) samples the
+        trajectory, resampled at the gyro's instants.
+    camera : str
+        Head camera, one of :data:`HEAD_CAMERAS`.
+    rng : numpy.random.Generator, optional
+        Every noise draw (default ``numpy.random.default_rng(0)``).
+    catalog : startracker.catalog.StarCatalog, optional
+        Default ``load_catalog(mag_limit)``.
+    **options
+        Any other field of :class:`UnitConfig` (``frame_period_s``, ``fidelity``, ``gyro_grade``, ``n_heads``,
+        ``identify_method``, ...).
+
+    Returns
+    -------
+    EstimateHistory
+        One row per whole frame inside the trajectory.
+    """
+    rng = np.random.default_rng(0) if rng is None else check_rng(rng)
+    t = as_float_array(t_s, "t_s", ndim=1)
+    q = as_float_array(q_body_to_icrs, "q_body_to_icrs", last_dim=4, ndim=2)
+    if len(q) != len(t) or len(t) < 2:
+        raise ValueError(f"q_body_to_icrs must have shape ({len(t)}, 4) with at least 2 rows, got {q.shape}")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("t_s must be strictly increasing")
+    norms = np.linalg.norm(q, axis=1)
+    if np.any(norms < 1e-12):
+        raise ValueError("q_body_to_icrs contains a zero quaternion")
+    q = q / norms[:, None]
+    if omega_gyro is not None:
+        w = as_float_array(omega_gyro, "omega_gyro", last_dim=3, ndim=2)
+        if len(w) != len(t) - 1:
+            raise ValueError(f"omega_gyro must have shape ({len(t) - 1}, 3), got {w.shape}")
+        dt = np.diff(t)
+        if np.ptp(dt) > 1e-9 * dt[0]:
+            raise ValueError("with omega_gyro, t_s must be uniformly spaced (the gyro's sample instants)")
+        options["gyro_rate_hz"] = 1.0 / float(dt[0])
+    config = UnitConfig(camera=camera, **options)
+    unit = StarTrackerUnit(config, catalog=catalog)
+    g = int(round(config.frame_period_s * config.gyro_rate_hz))  # gyro intervals per frame
+    n_frames = int(np.floor((t[-1] - t[0]) / config.frame_period_s + 1e-9))
+    if n_frames < 1:
+        raise ValueError(f"the trajectory must span at least one frame ({config.frame_period_s} s)")
+    if omega_gyro is None:
+        times = t[0] + np.arange(n_frames * g + 1) * unit.gyro_period_s
+        quats = quat_interpolate(t, q, np.minimum(times, t[-1]))
+    else:
+        times, quats = t, q
+    unit.reset(rng)
+    rows = dict(t=[], q=[], sig=[], w=[], valid=[], mode=[], n=[])
+    samples = []
+    for f in range(n_frames):
+        sl = slice(f * g, (f + 1) * g + 1)
+        unit.observe(times[sl], quats[sl], rng, omega_gyro=None if omega_gyro is None else w[f * g:(f + 1) * g])
+        est = unit.estimate()
+        rows["t"].append(times[sl][-1])
+        rows["q"].append(est.q_body_to_icrs)
+        rows["sig"].append(est.attitude_sigma_rad)
+        rows["w"].append(est.omega_body)
+        rows["valid"].append(est.valid)
+        rows["mode"].append(unit.tracker_mode)
+        rows["n"].append(unit.last_stats["n_attitude_samples"])
+        samples.extend(unit.last_samples)
+    return EstimateHistory(np.array(rows["t"]), np.array(rows["q"]), np.array(rows["sig"]), np.array(rows["w"]),
+                           np.array(rows["valid"], dtype=bool), tuple(rows["mode"]), np.array(rows["n"], dtype=int),
+                           samples)

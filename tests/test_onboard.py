@@ -1,0 +1,91 @@
+"""The onboard unit on a trajectory of one's own: truth in, estimate history out, no env."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from envs.avionics import Avionics
+from startracker.onboard import StarTrackerUnit, UnitConfig, run_star_tracker
+
+ARCSEC = np.radians(1 / 3600)
+
+
+def constant_rate_trajectory(duration_s=5.0, rate_hz=100.0, w_deg_s=(0.5, -0.3, 1.0)):
+    """q_body_to_icrs(t) = q0 ⊗ exp(ω t), ω in the body frame (scipy: r0 * exp), sampled at rate_hz."""
+    t = np.arange(0.0, duration_s + 1e-9, 1.0 / rate_hz)
+    w = np.radians(w_deg_s)
+    r = Rotation.from_euler("zyx", [40, -20, 10], degrees=True) * Rotation.from_rotvec(np.outer(t, w))
+    return t, r, w
+
+
+def errors_arcsec(r_true, t, hist):
+    """Angle between the estimate and the truth at each frame end, arcsec."""
+    truth = r_true[np.searchsorted(t, hist.t_s - 1e-9)]
+    assert np.allclose(t[np.searchsorted(t, hist.t_s - 1e-9)], hist.t_s)
+    d = truth.inv() * Rotation.from_quat(hist.q_body_to_icrs, scalar_first=True)
+    return np.linalg.norm(d.as_rotvec(), axis=1) / ARCSEC
+
+
+def test_readme_example_tracks_a_constant_rate_rotation():
+    t, r, _ = constant_rate_trajectory()
+    q = r.as_quat(scalar_first=True)  # (T, 4) w, x, y, z
+    hist = run_star_tracker(t, q, camera="paper000", rng=np.random.default_rng(0))
+    assert len(hist.t_s) == 50 and hist.q_body_to_icrs.shape == (50, 4)
+    # lost -> acquire -> track within the first frames, then tracking to the end
+    assert hist.mode[0] in ("acquire", "track") and hist.mode.index("track") <= 2
+    assert all(m == "track" for m in hist.mode[3:])
+    assert hist.valid[2:].all() and np.all(hist.n_attitude_samples[3:] >= 1)
+    err = errors_arcsec(r, t, hist)
+    late = slice(20, None)
+    # the estimate follows the truth to the tracker's accuracy, inside the filter's own 3σ
+    assert err[late].max() < 30.0
+    assert np.all(err[late] <= 3 * hist.attitude_sigma_rad[late] / ARCSEC + 2.0)
+    # and it is an estimate of this trajectory: the truth 0.1 s earlier is thousands of arcsec away
+    d = (r[np.searchsorted(t, hist.t_s[late] - 0.1 - 1e-9)].inv()
+         * Rotation.from_quat(hist.q_body_to_icrs[late], scalar_first=True)).magnitude() / ARCSEC
+    assert d.min() > 300.0
+
+
+def test_own_gyro_rates_are_used():
+    """A perfect gyro given by the user (the true rate) is what the filter's rate follows (the simulated tactical
+    gyro's white noise alone is ~4e-4 rad/s per sample); a biased one is learned as a bias."""
+    t, r, w = constant_rate_trajectory(duration_s=4.0)
+    q = r.as_quat(scalar_first=True)
+    good = run_star_tracker(t, q, omega_gyro=np.tile(w, (len(t) - 1, 1)), rng=np.random.default_rng(1))
+    err = errors_arcsec(r, t, good)
+    assert good.mode[-1] == "track" and err[15:].max() < 15.0
+    assert np.allclose(good.omega_body[-1], w, atol=1e-5)  # the filter's rate is the gyro's minus a tiny bias
+    bad = run_star_tracker(t, q, omega_gyro=np.tile(w + np.radians([0.0, 0.0, 0.2]), (len(t) - 1, 1)),
+                           rng=np.random.default_rng(1))
+    assert bad.mode[-1] == "track" and np.allclose(bad.omega_body[-1], w, atol=1e-4)
+    assert errors_arcsec(r, t, bad)[25:].max() < 30.0
+    simulated = run_star_tracker(t, q, rng=np.random.default_rng(1))
+    assert not np.allclose(simulated.omega_body[-1], w, atol=1e-5)
+
+
+def test_run_star_tracker_rejects_bad_input():
+    t, r, _ = constant_rate_trajectory(duration_s=1.0)
+    q = r.as_quat(scalar_first=True)
+    with pytest.raises(ValueError, match="t_s"):
+        run_star_tracker(t[::-1], q)
+    with pytest.raises(ValueError, match="q_body_to_icrs"):
+        run_star_tracker(t, q[:-1])
+    with pytest.raises(ValueError, match="at least one frame"):
+        run_star_tracker(t[:5], q[:5])
+    with pytest.raises(ValueError, match="omega_gyro"):
+        run_star_tracker(t, q, omega_gyro=np.zeros((3, 3)))
+    with pytest.raises(TypeError, match="rng"):
+        run_star_tracker(t, q, rng=0)
+
+
+def test_state_exists_after_init():
+    """Before any reset, the avionics answer with an invalid estimate instead of failing."""
+    for unit in (Avionics(), StarTrackerUnit(UnitConfig(gyro_grade="ideal"))):
+        est = unit.estimate()
+        assert est.valid is False and est.attitude_sigma_rad == np.pi and est.attitude_cov_rad2 is None
+        assert np.array_equal(est.q_body_to_icrs, [1.0, 0.0, 0.0, 0.0]) and np.array_equal(est.omega_body, np.zeros(3))
+        assert unit.tracker_mode == "lost" and unit.last_stats["n_attitude_samples"] == 0
+        assert unit.n_wrong_samples_total == 0 and unit.reacquisition_times_s == []
+        assert unit.render_last_frame() is None and unit.ekf is None
+        with pytest.raises(RuntimeError, match="reset"):
+            unit.observe(np.array([0.0, 0.01]), np.array([[1.0, 0, 0, 0]] * 2), np.random.default_rng(0))

@@ -1,6 +1,6 @@
 """Camera model: pinhole, principal point, first-order radial distortion (paper 004 eq. 3), mounting.
 
-Frames (shared/DESIGN.md §2): camera +z is the boresight toward the sky, +x toward increasing pixel
+Frames (docs/design.md, Conventions): camera +z is the boresight toward the sky, +x toward increasing pixel
 column, +y toward increasing pixel row. Pixel coordinates ``xy[:, 0]`` = column, ``xy[:, 1]`` = row,
 (0, 0) is the centre of the top-left pixel.
 

@@ -1,6 +1,6 @@
 """Quaternions (w, x, y, z), rotation matrices and rotation vectors.
 
-Convention (shared/DESIGN.md §2): scalar first, Hamilton product, unit norm. ``q_a_to_b`` maps the
+Convention (docs/design.md, Conventions): scalar first, Hamilton product, unit norm. ``q_a_to_b`` maps the
 coordinates of a vector in frame a to frame b, ``v_b = R(q_a_to_b) @ v_a``. Composition:
 ``q_a_to_c = quat_multiply(q_b_to_c, q_a_to_b)``.
 

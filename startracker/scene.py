@@ -3,7 +3,7 @@
 A frame of period ``T`` holds ``N`` exposures of length ``τ`` (the multi-exposure imaging approach,
 MEIA, of paper 000 and its reference [22]): exposure ``i`` starts at ``t0 + offset + i Δt``. Each
 exposure is stamped with its **mid instant**, and the attitude solved from the spots of exposure ``i``
-carries that timestamp (DESIGN.md §2, Time). ``N = 1`` is the ordinary single-exposure frame.
+carries that timestamp (docs/design.md, Conventions: Time). ``N = 1`` is the ordinary single-exposure frame.
 
 Choosing N from the angular rate (:func:`choose_n_exposures`)
 --------------------------------------------------------------

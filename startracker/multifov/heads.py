@@ -9,7 +9,7 @@ the equations below are rebuilt from the words and the geometry (our reading):
 * **eq. 1-2 (one head, perspective projection).** A star with head-frame coordinates ``(X, Y, Z)`` images
   at ``x = f X / Z``, ``y = f Y / Z`` on the image plane (origin at the image-plane centre, axes along the
   detector sides). The paper's pinhole has the optical-centre-behind-the-plane sign flip; the project's
-  convention (DESIGN.md §2: +z toward the sky, positive image) drops it, which changes no angle. Eq. 2 is
+  convention (docs/design.md, Conventions: +z toward the sky, positive image) drops it, which changes no angle. Eq. 2 is
   the same for the main head (focal ``f_m``) and the auxiliary head (``f_a``).
 * **eq. 3 (transfer matrix).** With installation matrices ``C_m`` and ``C_a`` (head -> body, i.e. each
   head's ``Camera.r_cam_to_body``) the auxiliary-to-main transfer is ``C_am = C_mᵀ C_a``.

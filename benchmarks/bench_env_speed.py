@@ -1,17 +1,26 @@
-"""Env speed: steps per second over whole AgileSlew-v0 episodes with the scripted slew policy, and where a step's
-time goes (physics, scene, detections, tracker, filter).
+"""Env speed: steps per second over whole eigenaxis-slew episodes of startracker/AgileSlew-v0, against the physics.
 
-Peers measured in the same run: real time (the simulated seconds per wall second) and, for scale, the env with the
-star tracker replaced by nothing (physics + policy only), which bounds what the sensor chain costs.
+Rows, all measured in the same run, each the median of ``--repeats`` runs (default 5) of ``--episodes`` whole
+episodes (default 2, 120° slews, seeds 0, 1, ...):
 
-    python benchmarks/bench_env_speed.py [--quick] [--episodes N]
+* default (centroid fidelity, multi-exposure, paper 000's camera, one head);
+* pixel fidelity (sparse rendering and centroiding);
+* single exposure (one exposure per frame: one attitude per frame);
+* two heads (paper 001's layout, inertial aiding);
+* 3CMOS (paper 004's colour head);
+* the **physics-only floor**: a fresh ``Spacecraft`` given the same wheel commands, stepped over the same control
+  periods with the same substeps (``Spacecraft.step_recording``), nothing else: what a step would cost with a star
+  tracker that costs nothing.
+
+Each row gives steps/s and the ratio of its step time to the floor's (1.0 = free avionics). Then the matcher table
+of ``bench_matching.py`` (DKVLUT vs compiled brute force vs scipy's cKDTree) when ``--matchers`` is given.
+
+    python benchmarks/bench_env_speed.py [--quick] [--repeats 5] [--episodes 2] [--matchers]
 """
 
 from __future__ import annotations
 
 import argparse
-import cProfile
-import pstats
 import sys
 import time
 from pathlib import Path
@@ -23,102 +32,100 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import gymnasium as gym  # noqa: E402
 
 import envs  # noqa: E402,F401
+from envs.spacecraft import Spacecraft  # noqa: E402
 from policies import EigenaxisSlewPolicy  # noqa: E402
 
-STAGES = {
-    "physics (MuJoCo RK4)": ("spacecraft.py", "step_recording"),
-    "scene (truth projection)": ("scene.py", "compute_scene"),
-    "detections (centroid/pixel)": ("centroid.py", "simulate_detections"),
-    "tracker (identify/predict/match/Wahba)": ("sensor.py", "_run_frame"),
-    "  of which matching": ("track.py", "match_stars"),
-    "  of which Wahba": ("kernels/attitude.py", "solve_wahba_batch"),
-    "filter (MEKF)": ("filter.py", "_fuse"),
-    "gyro model": ("imu.py", "measure"),
+CONFIGS = {
+    "default (centroid, multi-exposure)": {},
+    "pixel fidelity": {"fidelity": "pixel"},
+    "single exposure": {"exposure_mode": "single"},
+    "two heads": {"n_heads": 2},
+    "3CMOS": {"camera": "paper004_3cmos"},
+}
+TARGETS = {
+    "default (centroid, multi-exposure)": ">= 2000 steps/s, <= 2x floor",
+    "pixel fidelity": ">= 500 steps/s",
+    "two heads": ">= 1000 steps/s",
+    "3CMOS": ">= 1000 steps/s",
 }
 
 
-def run_episodes(n_episodes, fidelity, seed0=0, max_episode_s=40.0, angle=90.0):
-    env = gym.make("startracker/AgileSlew-v0", fidelity=fidelity, max_episode_s=max_episode_s)
+def run_episodes(kwargs: dict, n_episodes: int, angle_deg: float, max_episode_s: float):
+    """Whole episodes with the eigenaxis policy: (steps/s, steps, the actions of every step per episode)."""
+    env = gym.make("startracker/AgileSlew-v0", max_episode_s=max_episode_s, **kwargs)
     pol = EigenaxisSlewPolicy.from_env(env)
-    steps = 0
-    sim = 0.0
+    actions, steps = [], 0
     t0 = time.perf_counter()
     for k in range(n_episodes):
-        obs, _ = env.reset(seed=seed0 + k, options={"slew_angle_deg": angle})
-        done = False
+        obs, _ = env.reset(seed=k, options={"slew_angle_deg": angle_deg})
+        ep, done = [], False
         while not done:
-            obs, r, te, tr, info = env.step(pol.act(obs))
-            steps += 1
+            a = pol.act(obs)
+            obs, _, te, tr, _ = env.step(a)
+            ep.append(a)
             done = te or tr
-        sim += info["time_s"]
+        steps += len(ep)
+        actions.append(np.array(ep))
     wall = time.perf_counter() - t0
+    control_period_s = env.unwrapped.control_period_s
+    substep_s = env.unwrapped.avionics.gyro_period_s
     env.close()
-    return steps / wall, sim / wall, steps
+    return steps / wall, steps, actions, control_period_s, substep_s
 
 
-def physics_only(n_steps):
-    from envs.spacecraft import Spacecraft
-
+def physics_only(actions, control_period_s: float, substep_s: float) -> float:
+    """The floor: the same commands on a bare Spacecraft over the same periods and substeps, steps/s."""
     sc = Spacecraft()
+    n_sub = int(round(control_period_s / substep_s))
+    steps = 0
     t0 = time.perf_counter()
-    for _ in range(n_steps):
-        sc.apply_wheel_torque(np.full(4, 0.01))
-        for _ in range(10):
-            sc.step(0.01)
-    return n_steps / (time.perf_counter() - t0)
-
-
-def profile_stages(fidelity, n_steps=300):
-    env = gym.make("startracker/AgileSlew-v0", fidelity=fidelity, max_episode_s=1e6)
-    pol = EigenaxisSlewPolicy.from_env(env)
-    obs, _ = env.reset(seed=99, options={"slew_angle_deg": 120.0})
-    prof = cProfile.Profile()
-    prof.enable()
-    for _ in range(n_steps):
-        obs, *_ = env.step(pol.act(obs))
-    prof.disable()
-    st = pstats.Stats(prof)
-    total = max(v[3] for v in st.stats.values())
-    out = {}
-    for name, (file, func) in STAGES.items():
-        cum = sum(v[3] for (f, _, fn), v in st.stats.items() if f.endswith(file) and fn == func)
-        out[name] = cum / n_steps * 1e3
-    out["total per step (profiled)"] = total / n_steps * 1e3
-    return out
+    for ep in actions:
+        sc.set_state(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), np.zeros(sc.n_wheels), time_s=0.0)
+        for a in ep:
+            sc.apply_wheel_torque(np.clip(a, -1.0, 1.0) * sc.wheel_max_torque_Nm)
+            sc.step_recording(substep_s, n_sub)
+            steps += 1
+    return steps / (time.perf_counter() - t0)
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--episodes", type=int, default=None)
-    ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--quick", action="store_true", help="1 repeat of 1 short episode per row")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--episodes", type=int, default=2)
+    ap.add_argument("--angle-deg", type=float, default=120.0)
+    ap.add_argument("--matchers", action="store_true", help="also print the matcher table (bench_matching)")
     args = ap.parse_args()
-    n_ep = args.episodes or (1 if args.quick else 3)
-    reps = args.repeats or (1 if args.quick else 3)
-    rows = []
-    for fid in ("centroid", "pixel"):
-        run_episodes(1, fid, seed0=1000, max_episode_s=5.0)  # warm-up: databases, caches, imports
-        res = [run_episodes(n_ep, fid) for _ in range(reps)]
-        sps = np.array([r[0] for r in res])
-        rt = np.array([r[1] for r in res])
-        rows.append((fid, np.median(sps), sps.min(), sps.max(), np.median(rt), res[0][2]))
-    phys = np.median([physics_only(300) for _ in range(reps)])
-    print(f"AgileSlew-v0, eigenaxis policy, 90 deg slews, 0.1 s control period, 10 Hz frames, paper000 camera; "
-          f"{reps} repeats x {n_ep} episodes")
-    print("| fidelity | steps/s median | min | max | x real time | steps per repeat | target |")
+    reps, n_ep = (1, 1) if args.quick else (args.repeats, args.episodes)
+    max_s = 15.0 if args.quick else 40.0
+
+    results = {}
+    floor = []
+    for name, kw in CONFIGS.items():
+        run_episodes(kw, 1, args.angle_deg, 2.0)  # warm-up: imports, databases, compiled kernels
+    for _ in range(reps):  # interleaved, so the machine's load hits every row alike
+        for name, kw in CONFIGS.items():
+            sps, steps, actions, cp, sub = run_episodes(kw, n_ep, args.angle_deg, max_s)
+            results.setdefault(name, []).append((sps, steps))
+            if name.startswith("default"):
+                floor.append(physics_only(actions, cp, sub))
+    floor_sps = float(np.median(floor))
+    print(f"AgileSlew-v0, eigenaxis policy, {args.angle_deg:.0f}° slews, 0.1 s control period, 10 Hz frames, "
+          f"100 Hz gyro substeps; median of {reps} runs x {n_ep} whole episodes")
+    print("| configuration | steps/s (median) | min | max | step time / floor | steps per run | target |")
     print("|---|---|---|---|---|---|---|")
-    for fid, med, lo, hi, rt, n in rows:
-        target = ">= 2000 steps/s" if fid == "centroid" else ">= 5x real time"
-        print(f"| {fid} | {med:.0f} | {lo:.0f} | {hi:.0f} | {rt:.1f} | {n} | {target} |")
-    print(f"| peer: physics only (MuJoCo 10 substeps + torque) | {phys:.0f} | | | {phys * 0.1:.0f} | | |")
-    print(f"ratio physics-only / full chain (centroid): {phys / rows[0][1]:.1f}")
-    for fid in ("centroid", "pixel"):
-        st = profile_stages(fid, 100 if args.quick else 300)
-        print(f"\nwhere a step's time goes ({fid} fidelity, cProfile, ms per step; profiling inflates the total):")
-        print("| stage | ms/step |")
-        print("|---|---|")
-        for k, v in st.items():
-            print(f"| {k} | {v:.3f} |")
+    for name, rows in results.items():
+        sps = np.array([r[0] for r in rows])
+        med = float(np.median(sps))
+        print(f"| {name} | {med:.0f} | {sps.min():.0f} | {sps.max():.0f} | {floor_sps / med:.2f} | {rows[0][1]} | "
+              f"{TARGETS.get(name, '')} |")
+    print(f"| physics-only floor (same Spacecraft, same actions, same substeps) | {floor_sps:.0f} | "
+          f"{min(floor):.0f} | {max(floor):.0f} | 1.00 | | |")
+    if args.matchers:
+        import bench_matching
+
+        print()
+        bench_matching.main(["--quick"] if args.quick else [])
 
 
 if __name__ == "__main__":

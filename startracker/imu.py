@@ -31,8 +31,8 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
-from scipy.signal import lfilter
 
+from startracker.kernels import imu as kimu
 from startracker.validation import as_float_array, check_rng
 
 __all__ = [
@@ -60,6 +60,9 @@ DEG_PER_H_PER_SQRT_H = math.pi / 180.0 / 3600.0 / 60.0
 MICRO_G = 9.80665e-6
 #: 1 m/s/√h (velocity random walk) in m/s/√s.
 M_S_PER_SQRT_H = 1.0 / 60.0
+
+
+_NO_DRAWS = np.zeros((0, 3))  # stands for the draws of a term that is off (the kernel does not read them)
 
 
 def _check_nonneg(obj, names) -> None:
@@ -281,26 +284,14 @@ class _ThreeAxisSensor:
         k = u2.shape[0]
         if k == 0:
             return np.empty((0, 3))
-        # Biases advance to each sample instant, then the sample is formed.
-        if self._gm_drive > 0.0:
-            drive = self._gm_drive * rng.standard_normal((k, 3))
-            if k == 1:
-                gm = (self._phi * self._b_gm + drive[0])[None, :]
-            else:
-                gm, _ = lfilter([1.0], [1.0, -self._phi], drive, axis=0, zi=(self._phi * self._b_gm)[None, :])
-            self._b_gm = gm[-1].copy()
-        else:  # no Gauss-Markov term: its state is identically zero
-            gm = self._b_gm
-        if self._rw_step > 0.0:
-            rw = self._b_rw + np.cumsum(self._rw_step * rng.standard_normal((k, 3)), axis=0)
-            self._b_rw = rw[-1].copy()
-        else:
-            rw = self._b_rw
-        y = self._sf * u2 + (self._b_const + gm + rw)
-        if self._white_sigma > 0.0:
-            y += self._white_sigma * rng.standard_normal((k, 3))
-        if math.isfinite(self._limit):
-            np.clip(y, -self._limit, self._limit, out=y)
+        # the draws, in this order and amount: Gauss-Markov drive, random-walk steps, white noise
+        xi_gm = rng.standard_normal((k, 3)) if self._gm_drive > 0.0 else _NO_DRAWS
+        xi_rw = rng.standard_normal((k, 3)) if self._rw_step > 0.0 else _NO_DRAWS
+        xi_white = rng.standard_normal((k, 3)) if self._white_sigma > 0.0 else _NO_DRAWS
+        y = kimu.sensor_samples(
+            np.ascontiguousarray(u2), self._sf, self._b_const, self._b_gm, self._b_rw, self._phi, self._gm_drive, xi_gm,
+            self._rw_step, xi_rw, self._white_sigma, xi_white, self._limit,
+        )
         self._n_samples += k
         return y[0] if single else y
 

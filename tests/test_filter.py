@@ -346,3 +346,117 @@ def test_bad_input():
     # nothing was changed by the rejected calls
     assert f.t_s == 1.0 and f.n_updates == 0
     np.testing.assert_array_equal(f.q_body_to_icrs, [1, 0, 0, 0])
+
+
+def _random_spd(rng, n, scales):
+    a = rng.standard_normal((n, n)) * scales[:, None]
+    return a @ a.T + np.diag(scales**2) * 0.1
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_kernels_equal_filterpy_predict_and_update(seed):
+    """kernels.filter.ekf_predict / ekf_update = filterpy's ExtendedKalmanFilter.predict / update (Joseph form,
+    H = [I 0]) on random error states, covariances, transitions and measurements, to 1e-12."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    from startracker.kernels import filter as kf
+
+    rng = np.random.default_rng(seed)
+    scales = np.array([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6]) * rng.uniform(0.1, 10.0, 6)  # rad, rad/s
+    x = rng.standard_normal(6) * scales
+    P = _random_spd(rng, 6, scales)
+    w_hat = rng.normal(0.0, 0.3, 3)
+    dt = rng.uniform(0.001, 0.2)
+    F, Q = kf.transition(w_hat, dt, 2e-5, 1e-7)
+    F = F + 1e-3 * rng.standard_normal((6, 6))  # any transition, not only the model's
+    R = _random_spd(rng, 3, np.full(3, 5 * ARCSEC))
+    z = rng.standard_normal(3) * 1e-4
+
+    ref = ExtendedKalmanFilter(dim_x=6, dim_z=3)
+    ref.x, ref.P, ref.F, ref.Q = x.reshape(6, 1).copy(), P.copy(), F, Q
+    ref.predict()
+    x1, P1 = kf.ekf_predict(x, P, F, Q)
+    np.testing.assert_allclose(x1, ref.x[:, 0], rtol=0, atol=1e-12 * np.abs(ref.x).max())
+    np.testing.assert_allclose(P1, ref.P, rtol=0, atol=1e-12 * np.abs(ref.P).max())
+
+    H = np.hstack([np.eye(3), np.zeros((3, 3))])
+    ref.update(z.reshape(3, 1), lambda _x: H, lambda xx: xx[:3], R=R)
+    x2, P2 = kf.ekf_update(x1, P1, z, R)
+    np.testing.assert_allclose(x2, ref.x[:, 0], rtol=0, atol=1e-12 * np.abs(ref.x).max())
+    np.testing.assert_allclose(P2, ref.P, rtol=0, atol=1e-12 * np.abs(ref.P).max())
+
+
+@pytest.mark.parametrize("w_hat", [(0.0, 0.0, 0.0), (1e-6, -2e-6, 5e-7), (0.3, -0.2, 0.5), (2.0, 1.0, -3.0)])
+def test_transition_is_the_matrix_exponential(w_hat):
+    """Φ = expm(A dt) for the error dynamics δθ' = -[ω̂×] δθ - δb, δb' = 0; at ω̂ = 0, Q is Van Loan's exact
+    discretisation of the noise (δθ' gets -n_v, δb' gets n_u)."""
+    from scipy.linalg import expm
+
+    from startracker.kernels import filter as kf
+
+    w = np.array(w_hat)
+    dt, sv, su = 0.1, 3e-5, 2e-6
+    wx = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    a = np.zeros((6, 6))
+    a[:3, :3], a[:3, 3:] = -wx, -np.eye(3)
+    phi, qd = kf.transition(w, dt, sv, su)
+    np.testing.assert_allclose(phi, expm(a * dt), rtol=0, atol=1e-14)
+    if not w.any():
+        g_qc_g = np.diag([sv**2] * 3 + [su**2] * 3)
+        vl = expm(np.block([[-a, g_qc_g], [np.zeros((6, 6)), a.T]]) * dt)
+        q_ref = vl[6:, 6:].T @ vl[:6, 6:]
+        np.testing.assert_allclose(qd, q_ref, rtol=1e-12, atol=1e-30)
+
+
+def test_attitude_residual_and_advance_are_rotation_vectors():
+    from startracker.kernels import filter as kf
+
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        q = quat_random(rng)
+        r = rng.normal(0.0, 0.8, 3)
+        q2 = kf.quat_advance(q, r)
+        np.testing.assert_allclose(q2, quat_multiply(q, quat_from_rotvec(r)), atol=1e-15)
+        np.testing.assert_allclose(kf.attitude_residual(q, q2), r, atol=1e-12)
+        np.testing.assert_allclose(kf.attitude_residual(q, -q2), r, atol=1e-12)  # either sign
+        np.testing.assert_allclose(kf.attitude_residual(q, q2), attitude_error(q, q2), atol=1e-12)
+
+
+_EPISODE = r"""
+import hashlib, math, numpy as np
+from startracker.filter import AttitudeEKF
+from startracker.imu import Gyro, gyro_preset
+from startracker.rotations import quat_from_rotvec, quat_multiply
+rng = np.random.default_rng(2024)
+gyro = Gyro(gyro_preset("industrial", rate_hz=100.0), rng)
+f = AttitudeEKF.from_gyro_spec(gyro.spec, [1.0, 0.0, 0.0, 0.0], gate_chi2=30.0)
+h = hashlib.sha256()
+q = np.array([1.0, 0.0, 0.0, 0.0])
+w = np.array([0.02, -0.05, 0.1])
+for k in range(50):
+    t0 = 0.1 * k
+    y = gyro.measure(np.tile(w, (10, 1)), rng)
+    tm = np.sort(t0 + 0.1 * rng.uniform(0, 1, 5))
+    qm = quat_multiply(quat_multiply(q, quat_from_rotvec(np.outer(tm - t0, w))), quat_from_rotvec(rng.normal(0, 2e-5, (5, 3))))
+    f.process(y, t0 + 0.01 * np.arange(1, 11), qm, tm, np.broadcast_to(np.eye(3) * 4e-10, (5, 3, 3)))
+    q = quat_multiply(q, quat_from_rotvec(0.1 * w))
+    for a in (y, f.q_body_to_icrs, f.bias_rad_s, f.P):
+        h.update(np.ascontiguousarray(a).tobytes())
+print(h.hexdigest())
+"""
+
+
+def test_same_seed_same_episode_bit_for_bit_on_a_fresh_numba_cache(tmp_path):
+    """Gyro samples and filter states of a seeded episode hash the same in two processes, each compiling the kernels
+    into its own empty numba cache."""
+    import os
+    import subprocess
+    import sys
+
+    digests = []
+    for i in range(2):
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / f"cache{i}"))
+        out = subprocess.run([sys.executable, "-c", _EPISODE], env=env, capture_output=True, text=True, check=True,
+                             cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        digests.append(out.stdout.strip())
+    assert len(digests[0]) == 64 and digests[0] == digests[1]

@@ -304,7 +304,8 @@ class AttitudeEKF:
             Both run the sequential update. ``"batch"`` (a one-solve update of all M samples) was removed: the
             compiled sequential update is cheaper for every M a frame carries; passing it raises ValueError.
         validate : bool
-            False skips the checks, for a caller passing float64 arrays that meet them: ``omega_gyro`` (G, 3),
+            False skips the checks, for a caller passing C-contiguous float64 arrays that meet them:
+            ``omega_gyro`` (G, 3),
             ``t_gyro_s`` (G,), unit ``q_meas_body_to_icrs`` (M, 4), ``t_meas_s`` (M,), symmetric positive definite
             ``covariance_rad2`` (M, 3, 3), times ordered as above.
 
@@ -342,13 +343,13 @@ class AttitudeEKF:
         if np.any(norms < 1e-12):
             raise ValueError("q_meas_body_to_icrs contains a zero quaternion")
         qm = qm / norms[:, None]
-        return self._fuse(wg, tg, qm, tm, rs)
+        # one memory layout for the kernel (broadcast or strided inputs would each compile a variant)
+        return self._fuse(*(np.ascontiguousarray(a) for a in (wg, tg, qm, tm, rs)))
 
     def _fuse(self, wg, tg, qm, tm, rs) -> np.ndarray:
         """The work of :meth:`process` on checked inputs: one :func:`~startracker.kernels.filter.fuse_frame` call."""
         m = len(qm)
-        # the kernel works in place on fresh C-contiguous float64 copies (one compiled signature; no caller's
-        # array is changed behind its back)
+        # the kernel works in place on fresh float64 copies (no caller's array changes behind its back)
         q = np.array(self.q_body_to_icrs, dtype=np.float64)
         b = np.array(self.bias_rad_s, dtype=np.float64)
         P = np.array(self.ekf.P, dtype=np.float64)
@@ -356,13 +357,9 @@ class AttitudeEKF:
         phi = np.empty((6, 6))
         qd = np.empty((6, 6))
         z = np.empty(3)
-        wg = np.ascontiguousarray(wg, dtype=np.float64)
-        rs = np.ascontiguousarray(rs, dtype=np.float64)
         t, n_acc, n_prop = kf.fuse_frame(
-            q, b, P, float(self.t_s), wg, np.ascontiguousarray(tg, dtype=np.float64),
-            np.ascontiguousarray(qm, dtype=np.float64), np.ascontiguousarray(tm, dtype=np.float64), rs,
-            self.sigma_v, self.sigma_u, math.inf if self.gate_chi2 is None else self.gate_chi2,
-            accepted, phi, qd, z,
+            q, b, P, float(self.t_s), wg, tg, qm, tm, rs, self.sigma_v, self.sigma_u,
+            math.inf if self.gate_chi2 is None else self.gate_chi2, accepted, phi, qd, z,
         )
         self.n_updates += n_acc
         self.n_rejected += m - n_acc

@@ -169,24 +169,62 @@ def _inv3_sym_into(s, out):
 
 
 @njit(cache=True)
-def _update_into(x, P, y0, y1, y2, R, s_inv, k, tmp, x_out, P_out):
-    """Kalman update with H = [I 0] for the residual y (given S⁻¹): x_out = x + K y, Joseph-form P_out."""
+def _update_into(x, P, y0, y1, y2, R, s_inv, k, kr, tmp, x_out, P_out):
+    """Kalman update with H = [I 0] for the residual y (given S⁻¹): x_out = x + K y, Joseph-form P_out (may be P).
+
+    ``(I - K H) P (I - K H)ᵀ + K R Kᵀ`` with ``I - K H = I - [K 0]``, evaluated on its upper triangle and mirrored
+    (the result is symmetric; P is read only through ``tmp`` once ``tmp`` is formed).
+    """
     for i in range(6):
         for j in range(3):
             k[i, j] = P[i, 0] * s_inv[0, j] + P[i, 1] * s_inv[1, j] + P[i, 2] * s_inv[2, j]
+        for j in range(3):
+            kr[i, j] = k[i, 0] * R[0, j] + k[i, 1] * R[1, j] + k[i, 2] * R[2, j]
     for i in range(6):
         x_out[i] = x[i] + (k[i, 0] * y0 + k[i, 1] * y1 + k[i, 2] * y2)
-    # (I - K H) P (I - K H)ᵀ + K R Kᵀ, with (I - K H) = I - [K 0]
     for i in range(6):
         for j in range(6):
             tmp[i, j] = P[i, j] - (k[i, 0] * P[0, j] + k[i, 1] * P[1, j] + k[i, 2] * P[2, j])
     for i in range(6):
-        for j in range(6):
+        for j in range(i, 6):
             a = tmp[i, j] - (tmp[i, 0] * k[j, 0] + tmp[i, 1] * k[j, 1] + tmp[i, 2] * k[j, 2])
-            kr0 = k[i, 0] * R[0, 0] + k[i, 1] * R[1, 0] + k[i, 2] * R[2, 0]
-            kr1 = k[i, 0] * R[0, 1] + k[i, 1] * R[1, 1] + k[i, 2] * R[2, 1]
-            kr2 = k[i, 0] * R[0, 2] + k[i, 1] * R[1, 2] + k[i, 2] * R[2, 2]
-            P_out[i, j] = a + (kr0 * k[j, 0] + kr1 * k[j, 1] + kr2 * k[j, 2])
+            v = a + (kr[i, 0] * k[j, 0] + kr[i, 1] * k[j, 1] + kr[i, 2] * k[j, 2])
+            P_out[i, j] = v
+            P_out[j, i] = v
+
+
+@njit(cache=True)
+def _predict_model_cov_into(P, phi, qd, m1, m2):
+    """P ← Φ P Φᵀ + Q in place for the model's Φ = [[A, B], [0, I]] and a symmetric P.
+
+    With P = [[Paa, Pab], [Pabᵀ, Pbb]]: M2 = A Pab + B Pbb is the new cross block, M1 = A Paa + B Pabᵀ, and the new
+    attitude block is M1 Aᵀ + M2 Bᵀ; Pbb is unchanged (plus Q). A third of the products of the dense form.
+    """
+    for i in range(3):
+        for j in range(3):
+            s1 = 0.0
+            s2 = 0.0
+            for k in range(3):
+                s1 += phi[i, k] * P[k, j] + phi[i, k + 3] * P[k + 3, j]
+                s2 += phi[i, k] * P[k, j + 3] + phi[i, k + 3] * P[k + 3, j + 3]
+            m1[i, j] = s1
+            m2[i, j] = s2
+    for i in range(3):
+        for j in range(i, 3):
+            s = 0.0
+            for k in range(3):
+                s += m1[i, k] * phi[j, k] + m2[i, k] * phi[j, k + 3]
+            v = s + qd[i, j]
+            P[i, j] = v
+            P[j, i] = v
+    for i in range(3):
+        for j in range(3):
+            v = m2[i, j] + qd[i, j + 3]
+            P[i, j + 3] = v
+            P[j + 3, i] = v
+    for i in range(3):
+        for j in range(3):
+            P[i + 3, j + 3] += qd[i + 3, j + 3]
 
 
 @njit(cache=True)
@@ -220,8 +258,8 @@ def ekf_update(x, P, z, R):
     _inv3_sym_into(s, s_inv)
     x_new = np.empty(6)
     P_new = np.empty((6, 6))
-    _update_into(x, P, z[0] - x[0], z[1] - x[1], z[2] - x[2], R, s_inv, np.empty((6, 3)), np.empty((6, 6)),
-                 x_new, P_new)
+    _update_into(x, P, z[0] - x[0], z[1] - x[1], z[2] - x[2], R, s_inv, np.empty((6, 3)), np.empty((6, 3)),
+                 np.empty((6, 6)), x_new, P_new)
     return x_new, P_new
 
 
@@ -283,11 +321,11 @@ def _rotate_by(q, rx, ry, rz):
 
 
 @njit(cache=True)
-def _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, tmp):
+def _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2):
     wx, wy, wz = w_gyro[0] - b[0], w_gyro[1] - b[1], w_gyro[2] - b[2]
     _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd)
     _rotate_by(q, wx * dt, wy * dt, wz * dt)
-    _predict_cov_into(P, phi, qd, tmp, P)
+    _predict_model_cov_into(P, phi, qd, m1, m2)
 
 
 @njit(cache=True)
@@ -343,6 +381,9 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
     m = qm.shape[0]
     tmp = np.empty((6, 6))
     k = np.empty((6, 3))
+    kr = np.empty((6, 3))
+    m1 = np.empty((3, 3))
+    m2 = np.empty((3, 3))
     s = np.empty((3, 3))
     s_inv = np.empty((3, 3))
     dx = np.zeros(6)
@@ -360,7 +401,7 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
             w_gyro = wg[g]
             dt = tg[g] - t
             if dt > 0.0:
-                _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, tmp)
+                _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2)
                 n_prop += 1
                 t = tg[g]
             g += 1
@@ -370,7 +411,7 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
             w_gyro = wg[g]
         dt = t_next - t
         if dt > 0.0:
-            _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, tmp)
+            _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2)
             n_prop += 1
             t = t_next
         z0, z1, z2 = _residual(q[0], q[1], q[2], q[3], qm[i, 0], qm[i, 1], qm[i, 2], qm[i, 3])
@@ -389,7 +430,7 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
             accepted[i] = False
             continue
         accepted[i] = True
-        _update_into(x0, P, z0, z1, z2, r, s_inv, k, tmp, dx, P)
+        _update_into(x0, P, z0, z1, z2, r, s_inv, k, kr, tmp, dx, P)
         _rotate_by(q, dx[0], dx[1], dx[2])
         b[0] += dx[3]
         b[1] += dx[4]

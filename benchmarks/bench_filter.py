@@ -12,9 +12,10 @@ samples at random instants inside (gate at χ² = 30). Three ways, same inputs, 
   and, for scale, the public per-call API (``AttitudeEKF.propagate`` / ``update``, input checks included).
 
 Each is timed over a block of calls, the filter's state restored before every call, median over ``--repeats`` blocks
-(>= 5). ``Gyro.measure`` is timed per call for 10 samples (one control step at 100 Hz). ``--env`` also runs 300 steps
-of ``startracker/AgileSlew-v0`` with the eigenaxis slew policy (median steps/s over 5 blocks). ``--compile`` times
-an import and first call of each kernel on an empty numba cache (a subprocess).
+(>= 5). ``Gyro.measure`` is timed per call for 10 samples (one control step at 100 Hz). ``--env`` also runs 5 blocks
+of 300 steps of ``startracker/AgileSlew-v0`` with the eigenaxis slew policy (steps/s per block, and the time per step
+spent inside ``AttitudeEKF.process`` and ``Gyro.measure``, in situ). ``--compile`` times an import and the first calls
+on an empty numba cache (a subprocess).
 
     python benchmarks/bench_filter.py [--quick] [--env] [--compile]
 """
@@ -171,25 +172,50 @@ def bench_gyro(n_inner: int, repeats: int) -> list:
     return rows
 
 
-def bench_env(repeats: int = 5, steps: int = 300) -> list:
+def bench_env(repeats: int = 5, steps: int = 300) -> tuple:
+    """Steps/s of AgileSlew-v0 per block, and the wall time per step spent inside ``AttitudeEKF.process`` and
+    ``Gyro.measure`` (in situ: caches cold from the rest of the step, unlike the loops above), µs."""
     import gymnasium as gym
 
     import envs  # noqa: F401
     from policies import EigenaxisSlewPolicy
 
-    env = gym.make("startracker/AgileSlew-v0")
-    pol = EigenaxisSlewPolicy.from_env(env)
-    rates = []
-    for rep in range(repeats):
-        obs, _ = env.reset(seed=rep)
-        t = time.perf_counter()
-        for _ in range(steps):
-            obs, _, te, tr, _ = env.step(pol.act(obs))
-            if te or tr:
-                obs, _ = env.reset(seed=100 + rep)
-        rates.append(steps / (time.perf_counter() - t))
-    env.close()
-    return rates
+    spent = {"process": 0.0, "measure": 0.0}
+    originals = {"process": AttitudeEKF.process, "measure": Gyro.measure}
+
+    def timed_method(key):
+        orig = originals[key]
+
+        def method(*a, **k):
+            t = time.perf_counter()
+            out = orig(*a, **k)
+            spent[key] += time.perf_counter() - t
+            return out
+
+        return method
+
+    AttitudeEKF.process, Gyro.measure = timed_method("process"), timed_method("measure")
+    try:
+        env = gym.make("startracker/AgileSlew-v0")
+        pol = EigenaxisSlewPolicy.from_env(env)
+        obs, _ = env.reset(seed=999)
+        for _ in range(20):  # warm-up: first calls, numba cache load
+            obs, *_ = env.step(pol.act(obs))
+        spent.update(process=0.0, measure=0.0)
+        rates = []
+        for rep in range(repeats):
+            obs, _ = env.reset(seed=rep)
+            t = time.perf_counter()
+            for _ in range(steps):
+                obs, _, te, tr, _ = env.step(pol.act(obs))
+                if te or tr:
+                    obs, _ = env.reset(seed=100 + rep)
+            rates.append(steps / (time.perf_counter() - t))
+        env.close()
+    finally:
+        AttitudeEKF.process, Gyro.measure = originals["process"], originals["measure"]
+    n = repeats * steps
+    return rates, spent["process"] / n, spent["measure"] / n
 
 
 _COMPILE = r"""
@@ -248,9 +274,10 @@ def main(argv=None) -> None:
         print(f"| {grade} | {shape} | {t * 1e6:.2f} |")
 
     if args.env:
-        rates = bench_env()
+        rates, t_process, t_measure = bench_env()
         print(f"\nAgileSlew-v0, 300 steps x 5, eigenaxis slew policy: steps/s per block {[round(x) for x in rates]},"
-              f" median {statistics.median(rates):.0f}")
+              f" median {statistics.median(rates):.0f}; per step inside AttitudeEKF.process {t_process * 1e6:.1f} µs,"
+              f" inside Gyro.measure {t_measure * 1e6:.1f} µs")
     if args.compile:
         cold, warm = bench_compile()
         print("\nEmpty numba cache (s): import {:.2f}, filter kernels first call {:.2f}, gyro kernel first call {:.2f};"

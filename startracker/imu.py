@@ -22,7 +22,10 @@ conditions as "each component has the condition's magnitude" (constant σ = d, M
 walk d °/√h, which for d = 0.004 is the SIGI/GG1320 ring-laser gyro the paper cites: 0.0035 °/h bias,
 0.0035 °/√h random walk), and :func:`accelerometer_preset` assumes a 100 µg (1e-4 g) Markov bias.
 
-Every stochastic method takes an ``rng: numpy.random.Generator``.
+Every stochastic method takes an ``rng: numpy.random.Generator``: :meth:`Gyro.measure` draws its normal variates
+from it (Gauss-Markov drive, random-walk steps, white noise) and hands them to the compiled kernel
+:func:`startracker.kernels.imu.sensor_samples`, which forms the samples in numpy's operation order (bit for bit the
+``lfilter``/``cumsum`` formulation).
 """
 
 from __future__ import annotations

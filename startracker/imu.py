@@ -22,7 +22,10 @@ conditions as "each component has the condition's magnitude" (constant σ = d, M
 walk d °/√h, which for d = 0.004 is the SIGI/GG1320 ring-laser gyro the paper cites: 0.0035 °/h bias,
 0.0035 °/√h random walk), and :func:`accelerometer_preset` assumes a 100 µg (1e-4 g) Markov bias.
 
-Every stochastic method takes an ``rng: numpy.random.Generator``.
+Every stochastic method takes an ``rng: numpy.random.Generator``: :meth:`Gyro.measure` draws its normal variates
+from it (Gauss-Markov drive, random-walk steps, white noise) and hands them to the compiled kernel
+:func:`startracker.kernels.imu.sensor_samples`, which forms the samples in numpy's operation order (bit for bit the
+``lfilter``/``cumsum`` formulation).
 """
 
 from __future__ import annotations
@@ -31,8 +34,8 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
-from scipy.signal import lfilter
 
+from startracker.kernels import imu as kimu
 from startracker.validation import as_float_array, check_rng
 
 __all__ = [
@@ -60,6 +63,9 @@ DEG_PER_H_PER_SQRT_H = math.pi / 180.0 / 3600.0 / 60.0
 MICRO_G = 9.80665e-6
 #: 1 m/s/√h (velocity random walk) in m/s/√s.
 M_S_PER_SQRT_H = 1.0 / 60.0
+
+
+_NO_DRAWS = np.zeros((1, 0, 3))  # the draws of a sensor whose terms are all off (the kernel reads none)
 
 
 def _check_nonneg(obj, names) -> None:
@@ -226,6 +232,10 @@ class _ThreeAxisSensor:
         self._rw_step = rw * math.sqrt(self._dt)
         self._sf_sigma = sf_sigma_ppm * 1e-6
         self._limit = limit
+        # index of each term's draws in a call's (n_on, K, 3) block (0 when off: not read), and n_on
+        flags = [self._gm_drive > 0.0, self._rw_step > 0.0, self._white_sigma > 0.0]
+        index = np.cumsum(flags) - 1
+        self._terms_on = (int(max(index[0], 0)), int(max(index[1], 0)), int(max(index[2], 0)), int(sum(flags)))
         self.reset(rng)
 
     def reset(self, rng: np.random.Generator) -> None:
@@ -271,36 +281,25 @@ class _ThreeAxisSensor:
         k1 = math.floor(t1 / self._dt + eps)
         return np.arange(k0, k1 + 1) * self._dt
 
-    def _measure(self, u, rng) -> np.ndarray:
-        check_rng(rng)
-        u = as_float_array(u, self._input_name)
-        if u.ndim not in (1, 2) or u.shape[-1] != 3:
-            raise ValueError(f"{self._input_name} must have shape (3,) or (K, 3), got {u.shape}")
+    def _measure(self, u, rng, validate: bool = True) -> np.ndarray:
+        if validate:
+            check_rng(rng)
+            u = as_float_array(u, self._input_name)
+            if u.ndim not in (1, 2) or u.shape[-1] != 3:
+                raise ValueError(f"{self._input_name} must have shape (3,) or (K, 3), got {u.shape}")
         single = u.ndim == 1
         u2 = u.reshape(-1, 3)
         k = u2.shape[0]
         if k == 0:
             return np.empty((0, 3))
-        # Biases advance to each sample instant, then the sample is formed.
-        if self._gm_drive > 0.0:
-            drive = self._gm_drive * rng.standard_normal((k, 3))
-            if k == 1:
-                gm = (self._phi * self._b_gm + drive[0])[None, :]
-            else:
-                gm, _ = lfilter([1.0], [1.0, -self._phi], drive, axis=0, zi=(self._phi * self._b_gm)[None, :])
-            self._b_gm = gm[-1].copy()
-        else:  # no Gauss-Markov term: its state is identically zero
-            gm = self._b_gm
-        if self._rw_step > 0.0:
-            rw = self._b_rw + np.cumsum(self._rw_step * rng.standard_normal((k, 3)), axis=0)
-            self._b_rw = rw[-1].copy()
-        else:
-            rw = self._b_rw
-        y = self._sf * u2 + (self._b_const + gm + rw)
-        if self._white_sigma > 0.0:
-            y += self._white_sigma * rng.standard_normal((k, 3))
-        if math.isfinite(self._limit):
-            np.clip(y, -self._limit, self._limit, out=y)
+        # The draws, in this order and amount: Gauss-Markov drive, random-walk steps, white noise, (K, 3) each for
+        # the terms that are on. One call draws them all: the generator's stream is the same as with one call each.
+        on = self._terms_on
+        xi = rng.standard_normal((on[3], k, 3)) if on[3] else _NO_DRAWS
+        y = kimu.sensor_samples(
+            np.ascontiguousarray(u2), self._sf, self._b_const, self._b_gm, self._b_rw, self._phi,
+            self._gm_drive, xi[on[0]], self._rw_step, xi[on[1]], self._white_sigma, xi[on[2]], self._limit,
+        )
         self._n_samples += k
         return y[0] if single else y
 
@@ -344,7 +343,7 @@ class Gyro(_ThreeAxisSensor):
         """Current additive bias (constant + Gauss-Markov + random walk) per axis, shape (3,), rad/s (truth)."""
         return self._bias()
 
-    def measure(self, omega_true_body, rng: np.random.Generator) -> np.ndarray:
+    def measure(self, omega_true_body, rng: np.random.Generator, *, validate: bool = True) -> np.ndarray:
         """Produce consecutive samples, one per row, ``1 / rate_hz`` apart.
 
         Parameters
@@ -352,13 +351,16 @@ class Gyro(_ThreeAxisSensor):
         omega_true_body : array_like, shape (3,) or (K, 3)
             True body rate over each sample interval, rad/s.
         rng : numpy.random.Generator
+        validate : bool
+            False skips the checks, for a caller passing a finite float64 array of shape (3,) or (K, 3) and a
+            ``numpy.random.Generator``.
 
         Returns
         -------
         ndarray, shape (3,) or (K, 3)
             Measured rates, rad/s, within ``±max_rate_rad_s``.
         """
-        return self._measure(omega_true_body, rng)
+        return self._measure(omega_true_body, rng, validate)
 
 
 class Accelerometer(_ThreeAxisSensor):
@@ -393,7 +395,7 @@ class Accelerometer(_ThreeAxisSensor):
         """Current additive bias per axis, shape (3,), m/s² (truth)."""
         return self._bias()
 
-    def measure(self, specific_force_body, rng: np.random.Generator) -> np.ndarray:
+    def measure(self, specific_force_body, rng: np.random.Generator, *, validate: bool = True) -> np.ndarray:
         """Produce consecutive samples, one per row, ``1 / rate_hz`` apart.
 
         Parameters
@@ -401,13 +403,15 @@ class Accelerometer(_ThreeAxisSensor):
         specific_force_body : array_like, shape (3,) or (K, 3)
             True specific force (non-gravitational acceleration) in the body frame, m/s².
         rng : numpy.random.Generator
+        validate : bool
+            False skips the checks (a finite float64 array of shape (3,) or (K, 3), a Generator).
 
         Returns
         -------
         ndarray, shape (3,) or (K, 3)
             Measured specific force, m/s².
         """
-        return self._measure(specific_force_body, rng)
+        return self._measure(specific_force_body, rng, validate)
 
 
 # Datasheet-unit parameters of each grade: representative values of the class, not one product.

@@ -1,0 +1,462 @@
+"""MEKF kernels: the arithmetic of :class:`startracker.filter.AttitudeEKF` on float64 arrays, compiled, no checks.
+
+The model (see :mod:`startracker.filter`): a 6-element error state ``x = [δθ (rad), δb (rad/s)]`` with
+``q_true = q̂ ⊗ exp(δθ)`` (body frame), gyro ``ω_gyro = ω + b + n_v``, bias ``ḃ = n_u``; the measurement is the
+rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃, 0]``. Quaternions are (w, x, y, z).
+
+- :func:`transition`: the state transition Φ and the process noise Q of one gyro interval;
+- :func:`ekf_predict` / :func:`ekf_update`: filterpy's ``ExtendedKalmanFilter.predict`` / ``update`` (Joseph
+  form) for this ``H``, on any error state ``x``;
+- :func:`attitude_residual`: the innovation ``z`` of an attitude sample; :func:`quat_advance`: ``q ⊗ exp(r)``;
+- :func:`fuse_frame`: a whole frame (gyro intervals and attitude samples in time order, sequential updates
+  with the innovation gate and the multiplicative reset after each one), the per-frame path of
+  :meth:`startracker.filter.AttitudeEKF.process`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame"]
+
+
+@njit(cache=True)
+def _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd):
+    w2 = wx * wx + wy * wy + wz * wz
+    th2 = w2 * dt * dt
+    if th2 < 1e-8:  # Taylor series, error < th^4 relative
+        c1 = dt * (1.0 - th2 / 6.0)  # sin(w dt)/w
+        c2 = dt * dt * (0.5 - th2 / 24.0)  # (1 - cos(w dt))/w²
+        c3 = dt**3 * (1.0 / 6.0 - th2 / 120.0)  # (w dt - sin(w dt))/w³
+    else:
+        w = math.sqrt(w2)
+        th = w * dt
+        s = math.sin(th)
+        c1 = s / w
+        c2 = (1.0 - math.cos(th)) / w2
+        c3 = (th - s) / (w2 * w)
+    # [ω×]² = ω ωᵀ - |ω|² I
+    xx, yy, zz = wx * wx - w2, wy * wy - w2, wz * wz - w2
+    xy, xz, yz = wx * wy, wx * wz, wy * wz
+    # Φ11 = I - c1 [ω×] + c2 [ω×]²;  Φ12 = -dt I + c2 [ω×] - c3 [ω×]²;  Φ21 = 0;  Φ22 = I
+    phi[:] = 0.0
+    phi[0, 0] = 1.0 + c2 * xx
+    phi[0, 1] = c1 * wz + c2 * xy
+    phi[0, 2] = -c1 * wy + c2 * xz
+    phi[1, 0] = -c1 * wz + c2 * xy
+    phi[1, 1] = 1.0 + c2 * yy
+    phi[1, 2] = c1 * wx + c2 * yz
+    phi[2, 0] = c1 * wy + c2 * xz
+    phi[2, 1] = -c1 * wx + c2 * yz
+    phi[2, 2] = 1.0 + c2 * zz
+    phi[0, 3] = -dt - c3 * xx
+    phi[0, 4] = -c2 * wz - c3 * xy
+    phi[0, 5] = c2 * wy - c3 * xz
+    phi[1, 3] = c2 * wz - c3 * xy
+    phi[1, 4] = -dt - c3 * yy
+    phi[1, 5] = -c2 * wx - c3 * yz
+    phi[2, 3] = -c2 * wy - c3 * xz
+    phi[2, 4] = c2 * wx - c3 * yz
+    phi[2, 5] = -dt - c3 * zz
+    phi[3, 3] = phi[4, 4] = phi[5, 5] = 1.0
+    sv2, su2 = sigma_v * sigma_v, sigma_u * sigma_u
+    q11 = sv2 * dt + su2 * dt * dt * dt / 3.0
+    q12 = -0.5 * su2 * dt * dt
+    q22 = su2 * dt
+    qd[:] = 0.0
+    for i in range(3):
+        qd[i, i] = q11
+        qd[i, i + 3] = q12
+        qd[i + 3, i] = q12
+        qd[i + 3, i + 3] = q22
+
+
+@njit(cache=True)
+def transition(w_hat, dt, sigma_v, sigma_u):
+    """State transition and process noise of the error state over one gyro interval.
+
+    Parameters
+    ----------
+    w_hat : ndarray, shape (3,)
+        Bias-corrected body rate ``ω_gyro - b̂``, rad/s, held constant over the interval.
+    dt : float
+        Interval, s (>= 0).
+    sigma_v : float
+        Angle random walk σ_v, rad/√s.
+    sigma_u : float
+        Bias random walk σ_u, rad/s/√s.
+
+    Returns
+    -------
+    phi : ndarray, shape (6, 6)
+        ``[[exp(-[ω̂×] dt), -∫₀^dt exp(-[ω̂×] s) ds], [0, I]]`` (closed form; series below ``|ω̂| dt = 1e-4``).
+    qd : ndarray, shape (6, 6)
+        ``[[σ_v² dt + σ_u² dt³/3, -σ_u² dt²/2], [-σ_u² dt²/2, σ_u² dt]] ⊗ I₃``.
+    """
+    phi = np.empty((6, 6))
+    qd = np.empty((6, 6))
+    _transition_into(w_hat[0], w_hat[1], w_hat[2], dt, sigma_v, sigma_u, phi, qd)
+    return phi, qd
+
+
+@njit(cache=True)
+def _predict_cov_into(P, phi, qd, tmp, out):
+    """out = Φ P Φᵀ + Q (out may be P)."""
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += phi[i, k] * P[k, j]
+            tmp[i, j] = s
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += tmp[i, k] * phi[j, k]
+            out[i, j] = s + qd[i, j]
+
+
+@njit(cache=True)
+def ekf_predict(x, P, F, Q):
+    """filterpy's ``ExtendedKalmanFilter.predict`` (no control input): ``x ← F x``, ``P ← F P Fᵀ + Q``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (6,)
+        Error state (δθ rad, δb rad/s).
+    P : ndarray, shape (6, 6)
+        Its covariance.
+    F, Q : ndarray, shape (6, 6)
+        State transition and process noise (:func:`transition`).
+
+    Returns
+    -------
+    x_new : ndarray, shape (6,)
+    P_new : ndarray, shape (6, 6)
+    """
+    x_new = np.empty(6)
+    for i in range(6):
+        s = 0.0
+        for k in range(6):
+            s += F[i, k] * x[k]
+        x_new[i] = s
+    P_new = np.empty((6, 6))
+    _predict_cov_into(P, F, Q, np.empty((6, 6)), P_new)
+    return x_new, P_new
+
+
+@njit(cache=True)
+def _inv3_sym_into(s, out):
+    """Inverse of a symmetric positive-definite (3, 3) matrix by the adjugate (upper triangle read)."""
+    a, b, c = s[0, 0], s[0, 1], s[0, 2]
+    d, e, f = s[1, 1], s[1, 2], s[2, 2]
+    c00 = d * f - e * e
+    c01 = c * e - b * f
+    c02 = b * e - c * d
+    det = a * c00 + b * c01 + c * c02
+    c11 = a * f - c * c
+    c12 = b * c - a * e
+    c22 = a * d - b * b
+    out[0, 0] = c00 / det
+    out[0, 1] = out[1, 0] = c01 / det
+    out[0, 2] = out[2, 0] = c02 / det
+    out[1, 1] = c11 / det
+    out[1, 2] = out[2, 1] = c12 / det
+    out[2, 2] = c22 / det
+
+
+@njit(cache=True)
+def _update_into(x, P, y0, y1, y2, R, s_inv, k, kr, tmp, x_out, P_out):
+    """Kalman update with H = [I 0] for the residual y (given S⁻¹): x_out = x + K y, Joseph-form P_out (may be P).
+
+    ``(I - K H) P (I - K H)ᵀ + K R Kᵀ`` with ``I - K H = I - [K 0]``, evaluated on its upper triangle and mirrored
+    (the result is symmetric; P is read only through ``tmp`` once ``tmp`` is formed).
+    """
+    for i in range(6):
+        for j in range(3):
+            k[i, j] = P[i, 0] * s_inv[0, j] + P[i, 1] * s_inv[1, j] + P[i, 2] * s_inv[2, j]
+        for j in range(3):
+            kr[i, j] = k[i, 0] * R[0, j] + k[i, 1] * R[1, j] + k[i, 2] * R[2, j]
+    for i in range(6):
+        x_out[i] = x[i] + (k[i, 0] * y0 + k[i, 1] * y1 + k[i, 2] * y2)
+    for i in range(6):
+        for j in range(6):
+            tmp[i, j] = P[i, j] - (k[i, 0] * P[0, j] + k[i, 1] * P[1, j] + k[i, 2] * P[2, j])
+    for i in range(6):
+        for j in range(i, 6):
+            a = tmp[i, j] - (tmp[i, 0] * k[j, 0] + tmp[i, 1] * k[j, 1] + tmp[i, 2] * k[j, 2])
+            v = a + (kr[i, 0] * k[j, 0] + kr[i, 1] * k[j, 1] + kr[i, 2] * k[j, 2])
+            P_out[i, j] = v
+            P_out[j, i] = v
+
+
+@njit(cache=True)
+def _predict_model_cov_into(P, phi, qd, m1, m2):
+    """P ← Φ P Φᵀ + Q in place for the model's Φ = [[A, B], [0, I]] and a symmetric P.
+
+    With P = [[Paa, Pab], [Pabᵀ, Pbb]]: M2 = A Pab + B Pbb is the new cross block, M1 = A Paa + B Pabᵀ, and the new
+    attitude block is M1 Aᵀ + M2 Bᵀ; Pbb is unchanged (plus Q). A third of the products of the dense form.
+    """
+    for i in range(3):
+        for j in range(3):
+            s1 = 0.0
+            s2 = 0.0
+            for k in range(3):
+                s1 += phi[i, k] * P[k, j] + phi[i, k + 3] * P[k + 3, j]
+                s2 += phi[i, k] * P[k, j + 3] + phi[i, k + 3] * P[k + 3, j + 3]
+            m1[i, j] = s1
+            m2[i, j] = s2
+    for i in range(3):
+        for j in range(i, 3):
+            s = 0.0
+            for k in range(3):
+                s += m1[i, k] * phi[j, k] + m2[i, k] * phi[j, k + 3]
+            v = s + qd[i, j]
+            P[i, j] = v
+            P[j, i] = v
+    for i in range(3):
+        for j in range(3):
+            v = m2[i, j] + qd[i, j + 3]
+            P[i, j + 3] = v
+            P[j + 3, i] = v
+    for i in range(3):
+        for j in range(3):
+            P[i + 3, j + 3] += qd[i + 3, j + 3]
+
+
+@njit(cache=True)
+def ekf_update(x, P, z, R):
+    """filterpy's ``ExtendedKalmanFilter.update`` for ``H = [I₃, 0]``, ``h(x) = x[:3]`` (Joseph form).
+
+    ``y = z - x[:3]``, ``S = P[:3, :3] + R``, ``K = P Hᵀ S⁻¹``, ``x ← x + K y``,
+    ``P ← (I - K H) P (I - K H)ᵀ + K R Kᵀ``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (6,)
+        Prior error state.
+    P : ndarray, shape (6, 6)
+        Prior covariance.
+    z : ndarray, shape (3,)
+        Measurement (rotation vector, rad).
+    R : ndarray, shape (3, 3)
+        Measurement covariance, rad², symmetric positive definite.
+
+    Returns
+    -------
+    x_new : ndarray, shape (6,)
+    P_new : ndarray, shape (6, 6)
+    """
+    s = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            s[i, j] = P[i, j] + R[i, j]
+    s_inv = np.empty((3, 3))
+    _inv3_sym_into(s, s_inv)
+    x_new = np.empty(6)
+    P_new = np.empty((6, 6))
+    _update_into(x, P, z[0] - x[0], z[1] - x[1], z[2] - x[2], R, s_inv, np.empty((6, 3)), np.empty((6, 3)),
+                 np.empty((6, 6)), x_new, P_new)
+    return x_new, P_new
+
+
+@njit(cache=True)
+def _residual(qw, qx, qy, qz, mw, mx, my, mz):
+    """Rotation vector of q̂* ⊗ q_meas, sign-invariant (the shorter rotation)."""
+    w = qw * mw + qx * mx + qy * my + qz * mz
+    x = qw * mx - qx * mw - qy * mz + qz * my
+    y = qw * my + qx * mz - qy * mw - qz * mx
+    z = qw * mz - qx * my + qy * mx - qz * mw
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    vn = math.sqrt(x * x + y * y + z * z)
+    if vn < 1e-15:
+        return 2.0 * x, 2.0 * y, 2.0 * z
+    k = 2.0 * math.atan2(vn, w) / vn
+    return k * x, k * y, k * z
+
+
+@njit(cache=True)
+def attitude_residual(q_est, q_meas):
+    """Innovation of an attitude sample: the rotation vector of ``q_est* ⊗ q_meas`` (body frame).
+
+    Parameters
+    ----------
+    q_est, q_meas : ndarray, shape (4,)
+        Unit quaternions (w, x, y, z), body -> ICRS; the sign of ``q_meas`` does not matter.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Rotation vector, rad, of norm <= π.
+    """
+    out = np.empty(3)
+    out[0], out[1], out[2] = _residual(q_est[0], q_est[1], q_est[2], q_est[3],
+                                       q_meas[0], q_meas[1], q_meas[2], q_meas[3])
+    return out
+
+
+@njit(cache=True)
+def _rotate_by(q, rx, ry, rz):
+    """q ← normalise(q ⊗ exp(r)) in place, r a body-frame rotation vector (rad)."""
+    th2 = rx * rx + ry * ry + rz * rz
+    if th2 < 1e-16:
+        s = 0.5 - th2 / 48.0
+        dw = 1.0 - th2 / 8.0
+    else:
+        th = math.sqrt(th2)
+        s = math.sin(0.5 * th) / th
+        dw = math.cos(0.5 * th)
+    dx, dy, dz = s * rx, s * ry, s * rz
+    aw, ax, ay, az = q[0], q[1], q[2], q[3]
+    w = aw * dw - ax * dx - ay * dy - az * dz
+    x = aw * dx + ax * dw + ay * dz - az * dy
+    y = aw * dy - ax * dz + ay * dw + az * dx
+    z = aw * dz + ax * dy - ay * dx + az * dw
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    q[0], q[1], q[2], q[3] = w / n, x / n, y / n, z / n
+
+
+@njit(cache=True)
+def _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2):
+    wx, wy, wz = w_gyro[0] - b[0], w_gyro[1] - b[1], w_gyro[2] - b[2]
+    _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd)
+    _rotate_by(q, wx * dt, wy * dt, wz * dt)
+    _predict_model_cov_into(P, phi, qd, m1, m2)
+
+
+@njit(cache=True)
+def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last):
+    """One frame of the MEKF: gyro intervals and attitude samples in time order, sequential updates.
+
+    Gyro sample ``g`` is the rate over ``(tg[g-1], tg[g]]`` (the first from ``t_s``). Each attitude sample is
+    applied at its time ``tm[i]``, reached with the gyro sample covering it; samples at one instant are applied
+    one after the other. After each accepted update the error state is folded into ``q`` and ``b`` (multiplicative
+    reset, x back to zero). The filter ends at ``tg[-1]``.
+
+    Parameters
+    ----------
+    q : ndarray, shape (4,)
+        Attitude estimate (w, x, y, z), unit, body -> ICRS; updated in place.
+    b : ndarray, shape (3,)
+        Gyro bias estimate, rad/s; updated in place.
+    P : ndarray, shape (6, 6)
+        Error covariance (rad², (rad/s)²); updated in place.
+    t_s : float
+        Time of the estimate, s.
+    wg : ndarray, shape (G, 3)
+        Measured gyro rates, rad/s (G >= 1).
+    tg : ndarray, shape (G,)
+        End time of each gyro interval, s, strictly increasing, > ``t_s``.
+    qm : ndarray, shape (M, 4)
+        Unit attitude samples (w, x, y, z), any sign.
+    tm : ndarray, shape (M,)
+        Their times, s, non-decreasing, in ``[t_s, tg[-1]]``.
+    rs : ndarray, shape (M, 3, 3)
+        Body-frame covariance of each sample, rad², symmetric positive definite.
+    sigma_v, sigma_u : float
+        Angle random walk (rad/√s) and bias random walk (rad/s/√s) of the process noise.
+    gate_chi2 : float
+        Reject a sample whose normalised innovation squared ``zᵀ S⁻¹ z`` exceeds this (``inf``: accept all).
+    accepted : ndarray of bool, shape (M,)
+        Output: which samples were applied.
+    phi, qd : ndarray, shape (6, 6)
+        Output: Φ and Q of the last propagation (unchanged when there was none).
+    z_last : ndarray, shape (3,)
+        Output: innovation of the last sample (unchanged when M = 0).
+
+    Returns
+    -------
+    t_end : float
+        Time of the estimate at the end, s (``tg[-1]``, or a later sample time within rounding).
+    n_accepted : int
+        Number of accepted samples.
+    n_propagations : int
+        Number of propagation steps (intervals of non-zero length).
+    """
+    n_g = tg.shape[0]
+    m = qm.shape[0]
+    tmp = np.empty((6, 6))
+    k = np.empty((6, 3))
+    kr = np.empty((6, 3))
+    m1 = np.empty((3, 3))
+    m2 = np.empty((3, 3))
+    s = np.empty((3, 3))
+    s_inv = np.empty((3, 3))
+    dx = np.zeros(6)
+    x0 = np.zeros(6)
+    t = t_s
+    g = 0
+    n_acc = 0
+    n_prop = 0
+    w_gyro = wg[0]
+    for i in range(m + 1):
+        last = i == m
+        t_next = tg[n_g - 1] if last else tm[i]
+        # whole gyro intervals that end before the next event
+        while g < n_g and (last or tg[g] < t_next):
+            w_gyro = wg[g]
+            dt = tg[g] - t
+            if dt > 0.0:
+                _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2)
+                n_prop += 1
+                t = tg[g]
+            g += 1
+        if last:
+            break
+        if g < n_g:
+            w_gyro = wg[g]
+        dt = t_next - t
+        if dt > 0.0:
+            _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2)
+            n_prop += 1
+            t = t_next
+        z0, z1, z2 = _residual(q[0], q[1], q[2], q[3], qm[i, 0], qm[i, 1], qm[i, 2], qm[i, 3])
+        z_last[0], z_last[1], z_last[2] = z0, z1, z2
+        r = rs[i]
+        for a in range(3):
+            for c in range(3):
+                s[a, c] = P[a, c] + r[a, c]
+        _inv3_sym_into(s, s_inv)
+        nis = (
+            (z0 * s_inv[0, 0] + z1 * s_inv[1, 0] + z2 * s_inv[2, 0]) * z0
+            + (z0 * s_inv[0, 1] + z1 * s_inv[1, 1] + z2 * s_inv[2, 1]) * z1
+            + (z0 * s_inv[0, 2] + z1 * s_inv[1, 2] + z2 * s_inv[2, 2]) * z2
+        )
+        if nis > gate_chi2:
+            accepted[i] = False
+            continue
+        accepted[i] = True
+        _update_into(x0, P, z0, z1, z2, r, s_inv, k, kr, tmp, dx, P)
+        _rotate_by(q, dx[0], dx[1], dx[2])
+        b[0] += dx[3]
+        b[1] += dx[4]
+        b[2] += dx[5]
+        n_acc += 1
+    return t, n_acc, n_prop
+
+
+@njit(cache=True)
+def quat_advance(q, rotvec):
+    """``normalise(q ⊗ exp(rotvec))``: an attitude turned by a body-frame rotation vector.
+
+    Used for the propagation (``rotvec = ω̂ dt``) and for the multiplicative reset (``rotvec = δθ``).
+
+    Parameters
+    ----------
+    q : ndarray, shape (4,)
+        Unit quaternion (w, x, y, z).
+    rotvec : ndarray, shape (3,)
+        Rotation vector, rad, in the frame ``q`` maps from (body).
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        Unit quaternion.
+    """
+    out = q.copy()
+    _rotate_by(out, rotvec[0], rotvec[1], rotvec[2])
+    return out

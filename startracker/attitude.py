@@ -93,11 +93,14 @@ def solve_wahba_batch(v_meas, v_ref, sigma_rad, mask=None):
     b, r = _check_pairs(v_meas, v_ref)
     if b.ndim != 3:
         raise ValueError(f"v_meas must have shape (B, K, 3), got {b.shape}")
-    sigma = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), b.shape[:2])
+    sigma = np.ascontiguousarray(np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), b.shape[:2]))
     if not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
         raise ValueError("sigma_rad must be positive and finite")
-    m = np.ones(b.shape[:2], dtype=bool) if mask is None else np.broadcast_to(np.asarray(mask, dtype=bool), b.shape[:2])
-    return wahba_kernels.solve_wahba_batch(b, r, sigma, m)
+    if mask is None:
+        m = np.ones(b.shape[:2], dtype=bool)
+    else:
+        m = np.ascontiguousarray(np.broadcast_to(np.asarray(mask, dtype=bool), b.shape[:2]))
+    return wahba_kernels.solve_wahba_batch(np.ascontiguousarray(b), np.ascontiguousarray(r), sigma, m)
 
 
 def solve_wahba(v_meas, v_ref, sigma_rad=1e-5) -> WahbaSolution:

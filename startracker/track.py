@@ -42,17 +42,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from startracker.kernels import attitude as wahba_kernels
 from startracker.catalog import StarCatalog
-from startracker.kvector import KVector
 from startracker.optics import Camera
 from startracker.rotations import quat_normalize
 from startracker.validation import as_float_array
-from startracker.kernels import rotations as rk
+from startracker.kernels import track as track_kernels
 
 __all__ = [
     "MATCH_METHODS",
     "DKVLUT",
+    "KVectorTable",
     "match_stars",
     "PredictedStars",
     "predict_star_positions",
@@ -67,7 +66,6 @@ __all__ = [
 
 MATCH_METHODS = ("dkvlut", "brute", "kdtree")
 RADIUS_K_SIGMA = 6.0  # P(true spot outside r) = exp(-k²/2) = 1.5e-8
-_BRUTE_BLOCK = 2_000_000  # max elements of one distance block (16 MB)
 
 
 # --------------------------------------------------------------------------------------------- matching
@@ -96,104 +94,75 @@ def _check_radius(radius_px) -> float:
     return r
 
 
-def _nearest_per_query(qi, e, d2, n_obs: int) -> np.ndarray:
-    """From candidate pairs (query qi, predicted e, squared distance d2) within the radius, grouped by query
-    (qi non-decreasing), the nearest predicted index per query, ties to the lowest index; -1 for queries
-    without a candidate."""
-    idx = np.full(n_obs, -1, dtype=np.int64)
-    if len(qi) == 0:
-        return idx
-    new = np.empty(len(qi), dtype=bool)
-    new[0] = True
-    np.not_equal(qi[1:], qi[:-1], out=new[1:])
-    if new.all():  # one candidate per query: nothing to choose
-        idx[qi] = e
-        return idx
-    starts = np.flatnonzero(new)
-    group = np.cumsum(new) - 1
-    tie = d2 == np.minimum.reduceat(d2, starts)[group]
-    idx[qi[starts]] = np.minimum.reduceat(np.where(tie, e, np.iinfo(np.int64).max), starts)
-    return idx
+@dataclass(frozen=True)
+class KVectorTable:
+    """One axis of a :class:`DKVLUT`: paper 000's Table 1 (eqs. 1-3).
+
+    Attributes
+    ----------
+    sorted_values : ndarray, shape (W,)
+        ``S``, ascending, px.
+    order : ndarray of int, shape (W,)
+        ``R`` (0-based predicted indices): ``sorted_values[j] == coordinate[order[j]]``.
+    k : ndarray of int, shape (W,)
+        ``K`` (``k[i - 1]`` is the paper's ``K(i)``).
+    a1, b1 : float
+        The line ``h(i) = a1 i + b1`` (1-based i).
+    """
+
+    sorted_values: np.ndarray
+    order: np.ndarray
+    k: np.ndarray
+    a1: float
+    b1: float
 
 
 class DKVLUT:
-    """Paper 000's double k-vector lookup table over the predicted star points.
+    """Paper 000's double k-vector lookup table over the predicted star points (a thin object over
+    :func:`startracker.kernels.track.dkvlut_build` and :func:`~startracker.kernels.track.dkvlut_match`).
 
     Parameters
     ----------
     predicted_xy : array_like, shape (W, 2)
         Predicted spot centroids (column, row) in px, W >= 1, in any order.
+    validate : bool
+        False skips the checks: for a caller passing a C-contiguous float64 (W, 2) array of finite points.
 
     Attributes
     ----------
-    kx, ky : KVector
+    kx, ky : KVectorTable
         The tables of eqs. 1-3 per axis: ``kx.sorted_values`` = S_x, ``kx.order`` = R_x (0-based),
         ``kx.k`` = K_x, ``kx.a1``, ``kx.b1``.
 
     Notes
     -----
-    The intersection of eq. 6 is computed without sets: walking the shorter candidate lists (x or y over the
-    whole frame), a candidate belongs to the other axis' set when its row in that axis' table (the inverse
+    The intersection of eq. 6 is computed without sets: walking the shorter of an observed point's two
+    candidate lists, a candidate belongs to the other axis' set when its row in that axis' table (the inverse
     permutation of R) lies inside that axis' range ``[u_a, u_b]``, an O(1) test.
     """
 
-    __slots__ = ("xy", "kx", "ky", "n", "_xy_t", "_k_table", "_row_offset", "_line", "_degenerate", "_cross")
+    __slots__ = ("xy", "n", "tables")
 
     def __init__(self, predicted_xy, *, validate: bool = True):
-        # validate=False: the caller passes a float64 (W, 2) array of finite points
-        xy = _check_points(predicted_xy, "predicted_xy") if validate else predicted_xy
+        xy = np.ascontiguousarray(_check_points(predicted_xy, "predicted_xy")) if validate else predicted_xy
         if len(xy) == 0:
             raise ValueError("predicted_xy must contain at least one point")
         self.xy = xy
-        self.n = n = len(xy)
-        self._xy_t = np.ascontiguousarray(xy.T)  # (2, W): x row, y row
-        self.kx = KVector(self._xy_t[0])
-        self.ky = KVector(self._xy_t[1])
-        # Eq. 5 in one gather for both axes: rows u_a = K(i_a) (1-based) -> 0-based start K(i_a) - 1,
-        # u_b = K(i_b) -> 0-based exclusive stop K(i_b); x then y.
-        kx, ky = self.kx.k, self.ky.k
-        table = np.concatenate((kx, kx, ky, ky))
-        table[:n] -= 1
-        table[2 * n : 3 * n] -= 1
-        table[0] = table[2 * n] = 0  # K(1) - 1 = -1 -> row 0 (K(i) >= 1 for i >= 2)
-        self._k_table = table
-        self._row_offset = np.array([[-1], [n - 1], [2 * n - 1], [3 * n - 1]], dtype=np.int64)
-        # Eq. 4 as h = x / a1 + (∓r ∓ tol - b1) / a1 with Python floats; the tolerance (1e-9 of the coordinate
-        # scale) widens every range so floor/ceil rounding can never drop a point.
-        line, deg = [], []
-        for kv in (self.kx, self.ky):
-            s0, s1, a1, b1 = float(kv.sorted_values[0]), float(kv.sorted_values[-1]), float(kv.a1), float(kv.b1)
-            # Coordinates (nearly) all equal: the line is meaningless in floating point; every query
-            # touching [S(1), S(l_s)] gets the whole table, still a superset of the answer.
-            degenerate = not (a1 > 1e-9 * max(1.0, abs(s0), abs(s1)))
-            deg.append(degenerate)
-            line.append((0.0 if degenerate else 1.0 / a1, b1, 1e-9 * (abs(s0) + abs(s1) + a1), s0, s1))
-        self._line = line
-        self._degenerate = deg
-        self._cross = [None, None]
+        self.n = len(xy)
+        #: ``(order, k, line, cross)`` of :func:`startracker.kernels.track.dkvlut_build`
+        self.tables = track_kernels.dkvlut_build(xy)
 
-    def _ranges(self, obs_t: np.ndarray, r: float) -> np.ndarray:
-        """Eqs. 4-5 for both axes: rows (start_x, stop_x, start_y, stop_y) of 0-based half-open slices
-        ``[K(i_a) - 1, K(i_b))`` of the sorted tables (the paper's 1-based ``u ∈ [K(i_a), K(i_b)]``)."""
-        (ix, bx, tx, _, _), (iy, by, ty, _, _) = self._line
-        h = np.repeat(obs_t, 2, axis=0)  # x_p, x_p, y_p, y_p
-        h *= np.array([[ix], [ix], [iy], [iy]])
-        h += np.array([[(-r - tx - bx) * ix], [(r + tx - bx) * ix], [(-r - ty - by) * iy], [(r + ty - by) * iy]])
-        if not np.isfinite(h.sum()):  # only for coordinates near the float range limits
-            h[0::2] = np.nan_to_num(h[0::2], nan=1.0)
-            h[1::2] = np.nan_to_num(h[1::2], nan=float(self.n))
-        np.clip(h, 1, self.n, out=h)  # i in [1, l_s]; for the i_a rows truncation below is the floor
-        np.ceil(h[1::2], out=h[1::2])  # i_b = ceil(...)
-        i = h.astype(np.int64)
-        i += self._row_offset
-        u = self._k_table.take(i)
-        for axis, deg in enumerate(self._degenerate):
-            if deg:
-                s0, s1 = self._line[axis][3:]
-                o = obs_t[axis]
-                u[2 * axis] = 0
-                u[2 * axis + 1] = np.where((o + r >= s0) & (o - r <= s1), self.n, 0)
-        return u
+    def _axis(self, a: int) -> KVectorTable:
+        order, k, line, _ = self.tables
+        return KVectorTable(self.xy[order[a], a], order[a], k[a], float(line[a, 5]), float(line[a, 1]))
+
+    @property
+    def kx(self) -> KVectorTable:
+        return self._axis(0)
+
+    @property
+    def ky(self) -> KVectorTable:
+        return self._axis(1)
 
     def candidate_ranges(self, observed_xy, radius_px):
         """Candidate table rows of every observed point on both axes (eqs. 4-5).
@@ -204,9 +173,10 @@ class DKVLUT:
             ``kx.order[start_x[q]:stop_x[q]]`` is R_x(u_x) for observed point q (0-based predicted indices),
             i.e. the paper's 1-based rows ``u_x = K_x(i_a) .. K_x(i_b)``.
         """
-        obs = _check_points(observed_xy, "observed_xy")
-        u = self._ranges(np.ascontiguousarray(obs.T), _check_radius(radius_px))
-        return (u[0], u[1]), (u[2], u[3])
+        obs = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
+        order, k, line, _ = self.tables
+        u = track_kernels.dkvlut_ranges(order, k, line, obs, _check_radius(radius_px))
+        return (u[:, 0], u[:, 1]), (u[:, 2], u[:, 3])
 
     def candidates(self, observed_xy, radius_px) -> tuple[np.ndarray, np.ndarray]:
         """The intersection set R_P of eq. 6 for every observed point, as (query, predicted) pairs.
@@ -216,67 +186,20 @@ class DKVLUT:
         query_index, predicted_index : ndarray of int, shape (P,)
             Pairs with the predicted point in both the x and the y candidate set, grouped by query.
         """
-        obs = _check_points(observed_xy, "observed_xy")
-        return self._intersection(np.ascontiguousarray(obs.T), _check_radius(radius_px))
+        obs = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
+        order, k, line, cross = self.tables
+        return track_kernels.dkvlut_candidates(order, k, line, cross, obs, _check_radius(radius_px))
 
-    def _cross_rows(self, axis: int) -> np.ndarray:
-        """Row in the other axis' table of each row of ``axis``'s table: ``rank_other[R_axis]``."""
-        if self._cross[axis] is None:
-            tables = (self.kx, self.ky)
-            rank = np.empty(self.n, dtype=np.int64)
-            rank[tables[1 - axis].order] = np.arange(self.n)
-            self._cross[axis] = rank.take(tables[axis].order)
-        return self._cross[axis]
+    def match(self, observed_xy, radius_px, *, validate: bool = True) -> np.ndarray:
+        """Nearest predicted point within ``radius_px`` of every observed point (see :func:`match_stars`).
 
-    def _intersection(self, obs_t: np.ndarray, r: float):
-        u = self._ranges(obs_t, r)
-        counts = u[1::2] - u[0::2]  # >= 0: i_a <= i_b and K is non-decreasing
-        tot = counts.sum(axis=1)
-        a = 0 if tot[0] <= tot[1] else 1  # walk the axis with fewer candidates
-        cnt = counts[a]
-        nq = obs_t.shape[1]
-        # One repeat expands, per candidate: its query, its offset into the table, the other axis' range.
-        rows = np.empty((4, nq), dtype=np.int64)
-        rows[0] = np.arange(nq)
-        np.cumsum(cnt, out=rows[1])
-        rows[1] -= cnt
-        rows[1] -= u[2 * a]
-        rows[2:] = u[2 - 2 * a : 4 - 2 * a]
-        rep = np.repeat(rows, cnt, axis=1)
-        pos = np.arange(int(tot[a])) - rep[1]  # walked table rows u in [u_a, u_b]
-        ro = self._cross_rows(a).take(pos)  # the same stars' rows in the other axis' table
-        keep = np.flatnonzero((ro >= rep[2]) & (ro < rep[3]))  # R_x(u_x) ∩ R_y(u_y), eq. 6
-        return rep[0].take(keep), (self.kx, self.ky)[a].order.take(pos.take(keep))
-
-    def match(self, observed_xy, radius_px) -> np.ndarray:
-        """Nearest predicted point within ``radius_px`` of every observed point (see :func:`match_stars`)."""
-        obs = _check_points(observed_xy, "observed_xy")
-        r = _check_radius(radius_px)
-        if len(obs) == 0:
-            return np.empty(0, dtype=np.int64)
-        return self._match(obs, r)
-
-    def _match(self, obs: np.ndarray, r: float) -> np.ndarray:
-        obs_t = np.ascontiguousarray(obs.T)
-        qi, e = self._intersection(obs_t, r)
-        d = obs_t.take(qi, axis=1)
-        d -= self._xy_t.take(e, axis=1)
-        d *= d
-        d2 = d[0] + d[1]  # the shared expression (x_q - x_p)² + (y_q - y_p)²
-        ok = np.flatnonzero(d2 <= r * r)
-        return _nearest_per_query(qi.take(ok), e.take(ok), d2.take(ok), len(obs))
-
-
-def _match_brute(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
-    out = np.full(len(obs), -1, dtype=np.int64)
-    block = max(1, _BRUTE_BLOCK // max(len(pred), 1))
-    r2 = r * r
-    for s in range(0, len(obs), block):  # blocks only bound memory; each block is all-pairs vectorised
-        o = obs[s : s + block]
-        d2 = (o[:, 0, None] - pred[None, :, 0]) ** 2 + (o[:, 1, None] - pred[None, :, 1]) ** 2
-        j = np.argmin(d2, axis=1)  # first minimum: ties to the lowest index
-        out[s : s + block] = np.where(d2[np.arange(len(o)), j] <= r2, j, -1)
-    return out
+        ``validate=False``: a C-contiguous float64 (Q, 2) array of finite points and a float radius >= 0.
+        """
+        if validate:
+            observed_xy = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
+            radius_px = _check_radius(radius_px)
+        order, k, line, cross = self.tables
+        return track_kernels.dkvlut_match(self.xy, order, k, line, cross, observed_xy, radius_px)
 
 
 def _match_kdtree(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
@@ -296,7 +219,7 @@ def _match_kdtree(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
         # The tree's own arithmetic may order near-ties differently: settle them with the shared rule.
         amb = found & (j[:, 1] < n) & (d[:, 1] <= d[:, 0] * (1 + 1e-9) + 1e-12)
         if amb.any():
-            idx[amb] = _match_brute(pred, obs[amb], r)
+            idx[amb] = track_kernels.match_brute(pred, np.ascontiguousarray(obs[amb]), r)
     return idx.astype(np.int64)
 
 
@@ -312,11 +235,11 @@ def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut", *,
     radius_px : float
         Star-neighbourhood radius r >= 0, px (see :func:`prediction_radius_px` for the rule).
     method : {"dkvlut", "brute", "kdtree"}
-        Paper 000's double k-vector lookup table, the all-pairs "existing method", or scipy's cKDTree.
-        All three return the same answer.
+        Paper 000's double k-vector lookup table, the all-pairs "existing method" (both compiled), or scipy's
+        cKDTree. All three return the same answer.
     validate : bool
-        False skips the checks: for a caller passing float64 (W, 2) and (Q, 2) arrays of finite points, a float
-        radius >= 0 and a known method (the star tracker's per-frame path).
+        False skips the checks: for a caller passing C-contiguous float64 (W, 2) and (Q, 2) arrays of finite
+        points, a float radius >= 0 and a known method (the star tracker's per-frame path).
 
     Returns
     -------
@@ -332,17 +255,18 @@ def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut", *,
     if validate:
         if method not in MATCH_METHODS:
             raise ValueError(f"method must be one of {MATCH_METHODS}, got {method!r}")
-        pred = _check_points(predicted_xy, "predicted_xy")
-        obs = _check_points(observed_xy, "observed_xy")
+        pred = np.ascontiguousarray(_check_points(predicted_xy, "predicted_xy"))
+        obs = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
         r = _check_radius(radius_px)
     else:
         pred, obs, r = predicted_xy, observed_xy, radius_px
     if len(pred) == 0 or len(obs) == 0:
         return np.full(len(obs), -1, dtype=np.int64)
     if method == "dkvlut":
-        return DKVLUT(pred, validate=False)._match(obs, r)
+        order, k, line, cross = track_kernels.dkvlut_build(pred)
+        return track_kernels.dkvlut_match(pred, order, k, line, cross, obs, r)
     if method == "brute":
-        return _match_brute(pred, obs, r)
+        return track_kernels.match_brute(pred, obs, r)
     return _match_kdtree(pred, obs, r)
 
 

@@ -360,48 +360,68 @@ def predict_star_positions(
     if not isinstance(catalog, StarCatalog):
         raise TypeError("catalog must be a startracker.catalog.StarCatalog")
     q0 = quat_normalize(as_float_array(q_body_to_icrs, "q_body_to_icrs", last_dim=4, ndim=1))
-    t = np.atleast_1d(as_float_array(times_s, "times_s"))
+    t = np.ascontiguousarray(np.atleast_1d(as_float_array(times_s, "times_s")))
     if t.ndim != 1 or len(t) == 0:
         raise ValueError(f"times_s must be a non-empty 1-D array, got shape {t.shape}")
     t_ref = float(as_float_array(t_ref_s, "t_ref_s"))
-    w = np.zeros(3) if omega_body is None else _check_vec3(omega_body, "omega_body")
-    a = np.zeros(3) if alpha_body is None else _check_vec3(alpha_body, "alpha_body")
+    w = np.zeros(3) if omega_body is None else np.ascontiguousarray(_check_vec3(omega_body, "omega_body"))
+    a = np.zeros(3) if alpha_body is None else np.ascontiguousarray(_check_vec3(alpha_body, "alpha_body"))
     margin = float(as_float_array(margin_px, "margin_px"))
     if margin < 0:
         raise ValueError(f"margin_px must be >= 0, got {margin_px}")
     return _predict(camera, catalog, q0, t, t_ref, w, a, margin)
 
 
+def _camera_model(camera: Camera):
+    """The projection parameters ``(f_mm, k1_per_mm2, pixel_mm, ppx, ppy, cos θ, sin θ)`` of the kernels'
+    camera model (:func:`startracker.kernels.track.project_frame`), or None for a camera class that projects
+    by a model of its own (then its ``project``/``unproject`` methods are called).
+
+    A plain :class:`~startracker.optics.Camera` has θ = 0; a subclass with a float ``rotation_rad`` (the 3CMOS
+    channel cameras of :mod:`startracker.color`) is the same pinhole on a detector rotated in-plane by θ about
+    the principal point.
+    """
+    cls = type(camera)
+    if cls.project is Camera.project and cls.unproject is Camera.unproject:
+        c, s = 1.0, 0.0
+    else:
+        rot = getattr(camera, "rotation_rad", None)
+        if not isinstance(rot, (float, int)) or isinstance(rot, bool):
+            return None
+        c, s = (1.0, 0.0) if rot == 0.0 else (math.cos(rot), math.sin(rot))
+    ppx, ppy = camera.principal_point
+    return (float(camera.focal_length_mm), float(camera.distortion_k1_per_mm2), camera.pixel_size_mm, float(ppx),
+            float(ppy), c, s)
+
+
 def _predict(camera: Camera, catalog: StarCatalog, q0: np.ndarray, t: np.ndarray,
              t_ref: float, w: np.ndarray, a: np.ndarray, margin: float) -> PredictedStars:
     """The work of :func:`predict_star_positions`: ``q0`` a unit canonical (4,) float64 quaternion (as
     ``quat_normalize`` returns), ``t`` (N,) float64, ``w`` and ``a`` (3,) float64, ``margin`` >= 0."""
-    q_body = rk.quat_integrate(q0, w, t - t_ref, a).reshape(len(t), 4)
-    q_cam = rk.quat_multiply(q_body, np.asarray(camera.q_cam_to_body))  # cam -> body -> icrs
-    r_cam_to_icrs = rk.quat_to_matrix(q_cam)  # (N, 3, 3)
-
+    q_body, r_cam_to_icrs, mid, spread = track_kernels.propagate_attitudes(
+        q0, w, a, t - t_ref, np.array(camera.q_cam_to_body))
     # Candidate stars: one cone around the mean boresight wide enough for the whole frame.
-    bore = r_cam_to_icrs[:, :, 2]
-    mid = bore.mean(axis=0)
-    mid /= np.linalg.norm(mid)
-    spread = float(np.max(np.arccos(np.clip(bore @ mid, -1.0, 1.0))))
-    fpx = camera.focal_length_px
-    cone = min(np.pi, camera.half_diagonal_fov_rad + spread + margin / fpx + 0.02)
-    cand = catalog.cone_search(mid, cone)
-    n_t = len(t)
+    cone = min(math.pi, camera.half_diagonal_fov_rad + spread + margin / camera.focal_length_px + 0.02)
+    cand = catalog.cone_search(mid, cone, validate=False)
+    wdt, hgt = camera.resolution
     if len(cand) == 0:
         e = np.empty(0, dtype=np.int64)
         return PredictedStars(np.empty((0, 2)), e, e.copy(), np.empty(0, dtype=bool), t, q_body)
-    v_icrs = catalog.vectors[cand]  # (S, 3)
-    v_cam = v_icrs[None] @ r_cam_to_icrs  # (R^T v)^T = v^T R per instant, (N, S, 3)
+    model = _camera_model(camera)
+    if model is not None:
+        xy, star, inst, on_det = track_kernels.project_frame(catalog.vectors[cand], cand, r_cam_to_icrs, *model,
+                                                             wdt, hgt, float(margin))
+        return PredictedStars(xy, star, inst, on_det, t, q_body)
+    # A camera with a projection of its own: through its methods.
+    n_t = len(t)
+    v_cam = catalog.vectors[cand][None] @ r_cam_to_icrs  # (R^T v)^T = v^T R per instant, (N, S, 3)
     xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
-    wdt, hgt = camera.resolution
     x, y = xy[:, 0], xy[:, 1]
     keep = in_front & (x >= -0.5 - margin) & (x <= wdt - 0.5 + margin) & (y >= -0.5 - margin) & (y <= hgt - 0.5 + margin)
     on_det = (x >= -0.5) & (x <= wdt - 0.5) & (y >= -0.5) & (y <= hgt - 0.5)
     star = np.tile(cand, n_t)
     inst = np.repeat(np.arange(n_t), len(cand))
-    return PredictedStars(xy[keep], star[keep], inst[keep], on_det[keep], t, q_body)
+    return PredictedStars(np.ascontiguousarray(xy[keep]), star[keep], inst[keep], on_det[keep], t, q_body)
 
 
 def _as_cov3(a, name: str) -> np.ndarray:
@@ -477,17 +497,20 @@ def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, dt_s=0.0, cov_omega
     """
     if validate:
         dt_s = as_float_array(dt_s, "dt_s")
-    dt = float(np.max(np.abs(dt_s))) if np.size(dt_s) else 0.0
-    pt = prediction_covariance(cov_theta_body_rad2, dt, cov_omega_body, cov_alpha_body, validate=validate)
-    return _sigma_px_from_cov(camera, pt)
-
-
-def _sigma_px_from_cov(camera: Camera, pt: np.ndarray) -> float:
-    rcb = camera.r_cam_to_body
-    p00, p11, p22 = (rcb.T @ pt @ rcb).reshape(-1)[::4].tolist()
+        p = _as_cov3(cov_theta_body_rad2, "cov_theta_body_rad2")
+        pw = _as_cov3(cov_omega_body, "cov_omega_body")
+        pa = _as_cov3(cov_alpha_body, "cov_alpha_body")
+    else:
+        p, pw, pa = (c if _is_cov3(c) else _as_cov3(c, name) for c, name in (
+            (cov_theta_body_rad2, "cov_theta_body_rad2"), (cov_omega_body, "cov_omega_body"),
+            (cov_alpha_body, "cov_alpha_body")))
+    if type(dt_s) is float:
+        dt = abs(dt_s)
+    else:
+        dt = float(np.max(np.abs(dt_s))) if np.size(dt_s) else 0.0
     w, h = camera.resolution
-    rho = math.hypot(w, h) / 2.0
-    return math.sqrt(camera.focal_length_px**2 * max(p00, p11, 0.0) + rho**2 * max(p22, 0.0))
+    return track_kernels.prediction_sigma_px(camera.r_cam_to_body, p, pw, pa, dt, camera.focal_length_px,
+                                             math.hypot(w, h) / 2.0)
 
 
 def prediction_radius_px(
@@ -547,21 +570,6 @@ class InstantAttitudes:
         return np.flatnonzero(~self.ok)
 
 
-def _unique_assignment(obs: np.ndarray, pred_xy: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Several observed points on one predicted point: keep the nearest (ties: lowest observed index)."""
-    out = np.full(len(idx), -1, dtype=np.int64)
-    q = np.flatnonzero(idx >= 0)
-    if len(q) == 0:
-        return out
-    p = idx[q]
-    d2 = np.sum((obs[q] - pred_xy[p]) ** 2, axis=1)
-    o = np.lexsort((q, d2, p))
-    ps = p[o]
-    first = np.r_[True, ps[1:] != ps[:-1]]
-    out[q[o][first]] = ps[first]
-    return out
-
-
 def attitudes_per_instant(
     observed_xy,
     match_idx,
@@ -576,8 +584,9 @@ def attitudes_per_instant(
 ) -> InstantAttitudes:
     """Group matched detections by exposure instant and solve one Wahba problem per instant.
 
-    All instants are solved in one :func:`~startracker.attitude.solve_wahba_batch` call. One observed spot
-    per predicted spot (the nearest); then stars whose residual exceeds ``outlier_k_sigma`` times the
+    Compiled (:func:`startracker.kernels.track.solve_instants`): one observed spot per predicted spot (the
+    nearest, ties to the lowest observed index), then per instant the SVD Wahba solution with the QUEST
+    covariance (:func:`startracker.kernels.attitude.solve_wahba_one`); stars whose residual exceeds ``outlier_k_sigma`` times the
     angular noise are dropped (the worst per instant first, until none remain) and the instant re-solved.
 
     Parameters
@@ -605,8 +614,8 @@ def attitudes_per_instant(
     """
     if not validate:
         return _solve_instants(observed_xy, match_idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma)
-    obs = _check_points(observed_xy, "observed_xy")
-    idx = np.asarray(match_idx, dtype=np.int64)
+    obs = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
+    idx = np.ascontiguousarray(match_idx, dtype=np.int64)
     if idx.shape != (len(obs),):
         raise ValueError(f"match_idx must have shape ({len(obs)},), got {idx.shape}")
     if np.any(idx >= len(prediction)) or np.any(idx < -1):
@@ -619,54 +628,19 @@ def attitudes_per_instant(
 
 
 def _solve_instants(obs, idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma):
-    """The work of :func:`attitudes_per_instant` on checked inputs."""
-    n_t = len(prediction.times_s)
-    assign = _unique_assignment(obs, prediction.xy, idx)
-    q_obs = np.flatnonzero(assign >= 0)
-    p = assign[q_obs]
-    inst = prediction.instant[p]
-    # Pad per instant: (N, Kmax, 3).
-    order = np.lexsort((q_obs, inst))
-    q_obs, p, inst = q_obs[order], p[order], inst[order]
-    counts = np.bincount(inst, minlength=n_t)
-    kmax = max(int(counts.max()) if len(counts) else 0, 2)
-    slot = np.arange(len(inst)) - np.repeat(np.cumsum(counts) - counts, counts)
-    v_body = np.zeros((n_t, kmax, 3))
-    v_ref = np.zeros((n_t, kmax, 3))
-    mask = np.zeros((n_t, kmax), dtype=bool)
-    v_body[..., 2] = 1.0
-    v_ref[..., 2] = 1.0
-    if len(q_obs):
-        v_body[inst, slot] = camera.unproject(obs[q_obs]) @ camera.r_cam_to_body.T
-        v_ref[inst, slot] = catalog.vectors[prediction.star_index[p]]
-        mask[inst, slot] = True
+    """The work of :func:`attitudes_per_instant` on checked inputs (two kernel calls)."""
+    model = _camera_model(camera)
+    if model is not None:
+        v_body = track_kernels.unproject_to_body(obs, *model, camera.r_cam_to_body)
+    elif len(obs):
+        v_body = np.ascontiguousarray(camera.unproject(obs) @ camera.r_cam_to_body.T)
+    else:
+        v_body = np.empty((0, 3))
     sigma_rad = sigma_px / camera.focal_length_px
-    thr = outlier_k_sigma * sigma_rad
-    n_out = 0
-    # solve_wahba_batch's input checks and normalisation, once for all passes
-    b_unit = v_body / rk.vector_norm(v_body, keepdims=True)
-    r_unit = v_ref / rk.vector_norm(v_ref, keepdims=True)
-    sigma_b = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), b_unit.shape[:2])
-    for _ in range(kmax):  # a handful of passes: one outlier per instant per pass
-        q, cov, rms, ok = wahba_kernels.solve_wahba_batch(b_unit, r_unit, sigma_b, mask)
-        rb = np.einsum("bij,bkj->bki", rk.quat_to_matrix(q), v_body)
-        ang = np.arctan2(rk.vector_norm(rk.cross(rb, v_ref)), np.add.reduce(rb * v_ref, axis=-1))
-        ang = np.where(mask, ang, -1.0)
-        worst = np.argmax(ang, axis=1)
-        bad = (ang[np.arange(n_t), worst] > thr) & (mask.sum(axis=1) > 2)
-        if not bad.any():
-            break
-        mask[np.flatnonzero(bad), worst[bad]] = False
-        n_out += int(bad.sum())
-    n_used = mask.sum(axis=1)
-    ok = ok & (n_used >= int(min_stars))
-    # Detections dropped as outliers lose their assignment.
-    if len(q_obs):
-        kept = mask[inst, slot]
-        assign[q_obs[~kept]] = -1
-    cov = np.where(ok[:, None, None], cov, np.inf)
-    rms = np.where(ok, rms, np.inf)
-    return InstantAttitudes(prediction.times_s.copy(), q, cov, rms, n_used, ok, assign, n_out)
+    q, cov, rms, n_used, ok, assign, n_out = track_kernels.solve_instants(
+        obs, v_body, idx, prediction.xy, prediction.instant, prediction.star_index, catalog.vectors,
+        len(prediction.times_s), float(sigma_rad), int(min_stars), float(outlier_k_sigma * sigma_rad))
+    return InstantAttitudes(prediction.times_s.copy(), q, cov, rms, n_used, ok, assign, int(n_out))
 
 
 # --------------------------------------------------------------------------- synthetic test frames

@@ -266,7 +266,8 @@ def _axis_range(k, line, n, o, r):
     """Eqs. 4-5 on one axis: 0-based half-open rows ``[K(i_a) - 1, K(i_b))`` (the paper's ``[K(i_a), K(i_b)]``)."""
     inv, b1, tol, s0, s1 = line[0], line[1], line[2], line[3], line[4]
     if inv == 0.0:
-        if o + r >= s0 and o - r <= s1:
+        # tol also here: d² may underflow to <= r² for |o - s| a hair beyond r
+        if o + r + tol >= s0 and o - r - tol <= s1:
             return 0, n
         return 0, 0
     ha = o * inv + (-r - tol - b1) * inv
@@ -572,6 +573,7 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
     rot = np.empty((3, 3))
     n_out = 0
     for i in range(n_instants):
+        rms_i, ok_i = 0.0, False
         for _ in range(kmax):  # one outlier per pass
             rms_i, ok_i = solve_wahba_one(b[i], r[i], wgt, m[i], q_out[i], cov[i])
             _quat_to_matrix(q_out[i], rot)

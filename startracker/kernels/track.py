@@ -570,31 +570,20 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
     rms = np.empty(n_instants)
     n_used = np.empty(n_instants, dtype=np.int64)
     ok = np.empty(n_instants, dtype=np.bool_)
-    rot = np.empty((3, 3))
+    ang = np.empty(kmax)
     n_out = 0
     for i in range(n_instants):
         rms_i, ok_i = 0.0, False
         for _ in range(kmax):  # one outlier per pass
-            rms_i, ok_i = solve_wahba_one(b[i], r[i], wgt, m[i], q_out[i], cov[i])
-            _quat_to_matrix(q_out[i], rot)
-            worst = -1
-            worst_ang = -1.0
+            rms_i, ok_i = solve_wahba_one(b[i], r[i], wgt, m[i], q_out[i], cov[i], ang)
+            worst = 0
             cnt = 0
             for s in range(kmax):
                 if m[i, s]:
                     cnt += 1
-                    bs, rs = b[i, s], r[i, s]
-                    x = rot[0, 0] * bs[0] + rot[0, 1] * bs[1] + rot[0, 2] * bs[2]
-                    y = rot[1, 0] * bs[0] + rot[1, 1] * bs[1] + rot[1, 2] * bs[2]
-                    z = rot[2, 0] * bs[0] + rot[2, 1] * bs[1] + rot[2, 2] * bs[2]
-                    cx = y * rs[2] - z * rs[1]
-                    cy = z * rs[0] - x * rs[2]
-                    cz = x * rs[1] - y * rs[0]
-                    ang = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), x * rs[0] + y * rs[1] + z * rs[2])
-                    if ang > worst_ang:
-                        worst_ang = ang
-                        worst = s
-            if cnt > 2 and worst_ang > outlier_threshold_rad:
+                if ang[s] > ang[worst]:  # unused pairs hold -1
+                    worst = s
+            if cnt > 2 and ang[worst] > outlier_threshold_rad:
                 m[i, worst] = False
                 n_out += 1
             else:

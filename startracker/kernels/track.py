@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from startracker.kernels.attitude import solve_wahba_one
-from startracker.kernels.kvector import kvector_build
+from startracker.kernels.kvector import kvector_fill
 
 __all__ = [
     "propagate_attitudes",
@@ -237,13 +237,12 @@ def dkvlut_build(pred):
     k = np.empty((2, n), dtype=np.int64)
     line = np.empty((2, 6))
     col = np.empty(n)
+    srt = np.empty(n)
     for a in range(2):
         for j in range(n):
             col[j] = pred[j, a]
-        o, s, kk, a1, b1 = kvector_build(col)
-        order[a] = o
-        k[a] = kk
-        s0, s1 = s[0], s[n - 1]
+        a1, b1 = kvector_fill(col, order[a], srt, k[a])
+        s0, s1 = srt[0], srt[n - 1]
         degenerate = not (a1 > 1e-9 * max(1.0, abs(s0), abs(s1)))
         line[a, 0] = 0.0 if degenerate else 1.0 / a1
         line[a, 1] = b1

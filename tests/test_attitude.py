@@ -127,5 +127,5 @@ def test_any_rotation_angle_even_a_half_turn_equals_scipy(angle):
         sol = solve_wahba(b, r, 1e-6)
         ref, _ = Rotation.align_vectors(r, b)
         assert sol.success
-        err = quat_angle_between(sol.q, ref.as_quat()[[3, 0, 1, 2]])
+        err = quat_angle_between(sol.q_meas_to_ref, ref.as_quat()[[3, 0, 1, 2]])
         assert err < 1e-11

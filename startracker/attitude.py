@@ -1,7 +1,8 @@
 """Wahba's problem: the attitude that best maps measured directions onto catalog directions.
 
-Solved by the SVD method (Markley 1988), batched over many independent problems (one per exposure
-instant of a multi-exposure frame) with one ``numpy.linalg.svd`` call. Covariance by Shuster's QUEST
+The optimal attitude of the SVD method (Markley 1988), batched over many independent problems (one per exposure
+instant of a multi-exposure frame) in a compiled kernel (:mod:`startracker.kernels.attitude`: Davenport's
+q-method, the same optimum; :func:`solve_wahba_single` keeps numpy's SVD). Covariance by Shuster's QUEST
 measurement model: each unit vector measured with isotropic angular noise σ_i gives
 
     P = [ Σ σ_i⁻² (I − b_i b_iᵀ) ]⁻¹          (rad², in the measurement frame)

@@ -9,19 +9,19 @@ spot inside the star-neighbourhood radius r, and the matches of each instant giv
 Matchers (identical results, enforced by a property test)
 ---------------------------------------------------------
 ``"dkvlut"``
-    Paper 000 §3: one k-vector per axis over the predicted coordinates (:class:`~startracker.kvector.KVector`:
-    S, R, K, the line h = a1·i + b1 of eqs. 1-3). For every observed point at once: the line indices
+    Paper 000 §3: one k-vector per axis over the predicted coordinates (S, R, K, the line h = a1·i + b1 of
+    eqs. 1-3, the tables of :class:`~startracker.kvector.KVector`). For every observed point: the line indices
     ``i_a = floor((x_p - r - b1)/a1)``, ``i_b = ceil((x_p + r - b1)/a1)`` (eq. 4), the candidate range
     ``u ∈ [K(i_a), K(i_b)]`` (eq. 5), ``R(u)`` the candidates, the intersection of the x and y candidate
     sets (eq. 6) and the nearest of the intersection (case c). The intersection is a square of side 2r; a
     final ``d² <= r²`` check turns it into the disc, so the result equals brute force within the radius.
 ``"brute"``
-    Paper 000 §2, the "existing method": every observed point against every predicted point (a full
-    distance matrix, in blocks of observed points).
+    Paper 000 §2, the "existing method": every observed point against every predicted point.
 ``"kdtree"``
     :class:`scipy.spatial.cKDTree` over the predicted points, nearest neighbour with an upper bound.
 
-Match rule shared by all three: observed point q takes the predicted point p minimising
+The DKVLUT and the brute force are compiled loops of the same arithmetic (:mod:`startracker.kernels.track`), so
+their time ratio measures the algorithm. Match rule shared by all three: observed point q takes the predicted point p minimising
 ``d² = (x_q - x_p)² + (y_q - y_p)²`` (float64, this exact expression) among those with ``d² <= r²``;
 ties go to the lowest predicted index; ``-1`` when none lies within r.
 

@@ -101,17 +101,25 @@ def stable_argsort_into(values, order):
         order[:] = np.argsort(values, kind="mergesort")
         return
     start = np.zeros(n + 1, dtype=np.int64)
+    bins = np.empty(n, dtype=np.int64)
+    top = n - 1
     for i in range(n):
-        start[min(n - 1, int((values[i] - lo) * scale)) + 1] += 1
+        b = int((values[i] - lo) * scale)
+        if b > top:
+            b = top
+        bins[i] = b
+        start[b + 1] += 1
     for b in range(n):
         start[b + 1] += start[b]
     fill = start[:n].copy()
     for i in range(n):
-        b = min(n - 1, int((values[i] - lo) * scale))
+        b = bins[i]
         order[fill[b]] = i
         fill[b] += 1
     for b in range(n):
         a, e = start[b], start[b + 1]
+        if e - a < 2:
+            continue
         if e - a > 32:
             seg = order[a:e].copy()
             sub = np.argsort(values[seg], kind="mergesort")

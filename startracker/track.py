@@ -263,8 +263,7 @@ def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut", *,
     if len(pred) == 0 or len(obs) == 0:
         return np.full(len(obs), -1, dtype=np.int64)
     if method == "dkvlut":
-        order, k, line, cross = track_kernels.dkvlut_build(pred)
-        return track_kernels.dkvlut_match(pred, order, k, line, cross, obs, r)
+        return track_kernels.dkvlut_build_match(pred, obs, r)
     if method == "brute":
         return track_kernels.match_brute(pred, obs, r)
     return _match_kdtree(pred, obs, r)

@@ -22,6 +22,7 @@ __all__ = [
     "dkvlut_ranges",
     "dkvlut_candidates",
     "dkvlut_match",
+    "dkvlut_build_match",
     "match_brute",
     "unproject_to_body",
     "solve_instants",
@@ -404,6 +405,28 @@ def dkvlut_match(pred, order, k, line, cross, obs, radius_px):
                     bd = d2
         out[q] = best
     return out
+
+
+@njit(cache=True)
+def dkvlut_build_match(pred, obs, radius_px):
+    """:func:`dkvlut_build` then :func:`dkvlut_match`, in one call (the tracker's per-frame use).
+
+    Parameters
+    ----------
+    pred : ndarray, shape (W, 2)
+        Predicted points, px, W >= 1.
+    obs : ndarray, shape (Q, 2)
+        Observed points, px.
+    radius_px : float
+        r >= 0, px.
+
+    Returns
+    -------
+    ndarray of int64, shape (Q,)
+        As :func:`dkvlut_match`.
+    """
+    order, k, line, cross = dkvlut_build(pred)
+    return dkvlut_match(pred, order, k, line, cross, obs, radius_px)
 
 
 @njit(cache=True)

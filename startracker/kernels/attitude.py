@@ -16,44 +16,9 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["davenport_quaternion", "symmetric_min_eigenvalue", "solve_wahba_one", "solve_wahba_batch", "quat_from_rotation", "quat_to_rotation", "RAD_TO_ARCSEC"]
+__all__ = ["davenport_quaternion", "symmetric_min_eigenvalue", "solve_wahba_one", "solve_wahba_batch", "quat_to_rotation", "RAD_TO_ARCSEC"]
 
 RAD_TO_ARCSEC = 180.0 / np.pi * 3600.0
-
-
-@njit(cache=True)
-def quat_from_rotation(m, q):
-    """Shepperd's method: a proper rotation matrix to the canonical unit quaternion (w, x, y, z).
-
-    Parameters
-    ----------
-    m : ndarray, shape (3, 3)
-        Rotation matrix (``v_ref = m @ v_meas``).
-    q : ndarray, shape (4,)
-        Output, written in place: first non-zero component positive.
-    """
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    big = max(tr, m[0, 0], m[1, 1], m[2, 2])
-    if big == tr:
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q[0], q[1], q[2], q[3] = 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s
-    elif big == m[0, 0]:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q[0], q[1], q[2], q[3] = (m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s
-    elif big == m[1, 1]:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q[0], q[1], q[2], q[3] = (m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q[0], q[1], q[2], q[3] = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    sign = 1.0
-    for i in range(4):
-        if q[i] != 0.0:
-            sign = 1.0 if q[i] > 0.0 else -1.0
-            break
-    for i in range(4):
-        q[i] = sign * q[i] / n
 
 
 @njit(cache=True)

@@ -1,7 +1,8 @@
 """Wahba's problem: the attitude that best maps measured directions onto catalog directions.
 
-Solved by the SVD method (Markley 1988), batched over many independent problems (one per exposure
-instant of a multi-exposure frame) with one ``numpy.linalg.svd`` call. Covariance by Shuster's QUEST
+The optimal attitude of the SVD method (Markley 1988), batched over many independent problems (one per exposure
+instant of a multi-exposure frame) in a compiled kernel (:mod:`startracker.kernels.attitude`: Davenport's
+q-method, the same optimum; :func:`solve_wahba_single` keeps numpy's SVD). Covariance by Shuster's QUEST
 measurement model: each unit vector measured with isotropic angular noise σ_i gives
 
     P = [ Σ σ_i⁻² (I − b_i b_iᵀ) ]⁻¹          (rad², in the measurement frame)
@@ -93,11 +94,14 @@ def solve_wahba_batch(v_meas, v_ref, sigma_rad, mask=None):
     b, r = _check_pairs(v_meas, v_ref)
     if b.ndim != 3:
         raise ValueError(f"v_meas must have shape (B, K, 3), got {b.shape}")
-    sigma = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), b.shape[:2])
+    sigma = np.ascontiguousarray(np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), b.shape[:2]))
     if not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
         raise ValueError("sigma_rad must be positive and finite")
-    m = np.ones(b.shape[:2], dtype=bool) if mask is None else np.broadcast_to(np.asarray(mask, dtype=bool), b.shape[:2])
-    return wahba_kernels.solve_wahba_batch(b, r, sigma, m)
+    if mask is None:
+        m = np.ones(b.shape[:2], dtype=bool)
+    else:
+        m = np.ascontiguousarray(np.broadcast_to(np.asarray(mask, dtype=bool), b.shape[:2]))
+    return wahba_kernels.solve_wahba_batch(np.ascontiguousarray(b), np.ascontiguousarray(r), sigma, m)
 
 
 def solve_wahba(v_meas, v_ref, sigma_rad=1e-5) -> WahbaSolution:

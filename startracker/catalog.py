@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from startracker.kernels import catalog as catalog_kernels
 from startracker.validation import as_float_array
 
 __all__ = [
@@ -118,7 +119,7 @@ class StarCatalog:
     vmag: np.ndarray
     bv: np.ndarray
     epoch: float = 2025.0
-    _tree: cKDTree = field(init=False, repr=False)
+    _z_index: tuple = field(init=False, repr=False)
 
     def __post_init__(self):
         n = len(self.hip)
@@ -132,7 +133,10 @@ class StarCatalog:
         object.__setattr__(self, "vectors", v)
         object.__setattr__(self, "vmag", as_float_array(self.vmag, "vmag"))
         object.__setattr__(self, "bv", as_float_array(self.bv, "bv"))
-        object.__setattr__(self, "_tree", cKDTree(v) if n else None)
+        # Cone-search structure: stars sorted by z (declination bands), see startracker.kernels.catalog.
+        z_order = np.argsort(v[:, 2], kind="stable").astype(np.int64)
+        v_by_z = np.ascontiguousarray(v[z_order])
+        object.__setattr__(self, "_z_index", (v_by_z, np.ascontiguousarray(v_by_z[:, 2]), z_order))
 
     def __len__(self) -> int:
         return len(self.hip)
@@ -154,8 +158,11 @@ class StarCatalog:
         sel = np.asarray(mask_or_index)
         return StarCatalog(self.hip[sel], self.vectors[sel], self.vmag[sel], self.bv[sel], self.epoch)
 
-    def cone_search(self, direction, radius_rad: float) -> np.ndarray:
+    def cone_search(self, direction, radius_rad: float, *, validate: bool = True) -> np.ndarray:
         """Indices of all stars within ``radius_rad`` of ``direction``.
+
+        A compiled scan of the declination band that can hold the cone (stars sorted by their z component),
+        each star tested by its chord ``|v - d| <= 2 sin(radius_rad / 2)`` (relative tolerance 1e-12).
 
         Parameters
         ----------
@@ -163,11 +170,16 @@ class StarCatalog:
             Direction(s) in ICRS (normalised here).
         radius_rad : float
             Cone half-angle in rad, in (0, π].
+        validate : bool
+            False skips the checks and the normalisation: for a caller passing one unit (3,) float64 direction
+            and a float radius in (0, π] (the tracker's per-frame prediction).
 
         Returns
         -------
         ndarray of int (sorted) for one direction, or a list of such arrays for Q directions.
         """
+        if not validate:
+            return self._cone(direction, float(radius_rad))
         d = as_float_array(direction, "direction", last_dim=3)
         n = np.linalg.norm(d, axis=-1, keepdims=True)
         if np.any(n == 0):
@@ -175,13 +187,16 @@ class StarCatalog:
         if not (0 < radius_rad <= np.pi):
             raise ValueError(f"radius_rad must be in (0, pi], got {radius_rad}")
         d = d / n
-        chord = 2.0 * np.sin(radius_rad / 2.0)
-        if self._tree is None:
-            return np.empty(0, dtype=np.int64) if d.ndim == 1 else [np.empty(0, dtype=np.int64)] * len(d)
-        res = self._tree.query_ball_point(d, r=chord * (1 + 1e-12))
         if d.ndim == 1:
-            return np.array(sorted(res), dtype=np.int64)
-        return [np.array(sorted(r), dtype=np.int64) for r in res]
+            return self._cone(np.ascontiguousarray(d), float(radius_rad))
+        return [self._cone(np.ascontiguousarray(di), float(radius_rad)) for di in d.reshape(-1, 3)]
+
+    def _cone(self, d: np.ndarray, radius_rad: float) -> np.ndarray:
+        v_by_z, z_sorted, z_order = self._z_index
+        if len(z_order) == 0:
+            return np.empty(0, dtype=np.int64)
+        chord = 2.0 * np.sin(radius_rad / 2.0) * (1 + 1e-12)
+        return catalog_kernels.cone_search_sorted_z(v_by_z, z_sorted, z_order, d, radius_rad, chord)
 
 
 def _propagate(ra, dec, pmra_mas_yr, pmdec_mas_yr, years) -> np.ndarray:

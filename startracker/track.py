@@ -9,19 +9,19 @@ spot inside the star-neighbourhood radius r, and the matches of each instant giv
 Matchers (identical results, enforced by a property test)
 ---------------------------------------------------------
 ``"dkvlut"``
-    Paper 000 §3: one k-vector per axis over the predicted coordinates (:class:`~startracker.kvector.KVector`:
-    S, R, K, the line h = a1·i + b1 of eqs. 1-3). For every observed point at once: the line indices
+    Paper 000 §3: one k-vector per axis over the predicted coordinates (S, R, K, the line h = a1·i + b1 of
+    eqs. 1-3, the tables of :class:`~startracker.kvector.KVector`). For every observed point: the line indices
     ``i_a = floor((x_p - r - b1)/a1)``, ``i_b = ceil((x_p + r - b1)/a1)`` (eq. 4), the candidate range
     ``u ∈ [K(i_a), K(i_b)]`` (eq. 5), ``R(u)`` the candidates, the intersection of the x and y candidate
     sets (eq. 6) and the nearest of the intersection (case c). The intersection is a square of side 2r; a
     final ``d² <= r²`` check turns it into the disc, so the result equals brute force within the radius.
 ``"brute"``
-    Paper 000 §2, the "existing method": every observed point against every predicted point (a full
-    distance matrix, in blocks of observed points).
+    Paper 000 §2, the "existing method": every observed point against every predicted point.
 ``"kdtree"``
     :class:`scipy.spatial.cKDTree` over the predicted points, nearest neighbour with an upper bound.
 
-Match rule shared by all three: observed point q takes the predicted point p minimising
+The DKVLUT and the brute force are compiled loops of the same arithmetic (:mod:`startracker.kernels.track`), so
+their time ratio measures the algorithm. Match rule shared by all three: observed point q takes the predicted point p minimising
 ``d² = (x_q - x_p)² + (y_q - y_p)²`` (float64, this exact expression) among those with ``d² <= r²``;
 ties go to the lowest predicted index; ``-1`` when none lies within r.
 
@@ -45,17 +45,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from startracker.kernels import attitude as wahba_kernels
 from startracker.catalog import StarCatalog
-from startracker.kvector import KVector
 from startracker.optics import Camera
 from startracker.rotations import quat_normalize
 from startracker.validation import as_float_array
-from startracker.kernels import rotations as rk
+from startracker.kernels import track as track_kernels
 
 __all__ = [
     "MATCH_METHODS",
     "DKVLUT",
+    "KVectorTable",
     "match_stars",
     "PredictedStars",
     "predict_star_positions",
@@ -68,7 +67,6 @@ __all__ = [
 
 MATCH_METHODS = ("dkvlut", "brute", "kdtree")
 RADIUS_K_SIGMA = 6.0  # P(true spot outside r) = exp(-k²/2) = 1.5e-8
-_BRUTE_BLOCK = 2_000_000  # max elements of one distance block (16 MB)
 
 
 # --------------------------------------------------------------------------------------------- matching
@@ -97,104 +95,75 @@ def _check_radius(radius_px) -> float:
     return r
 
 
-def _nearest_per_query(qi, e, d2, n_obs: int) -> np.ndarray:
-    """From candidate pairs (query qi, predicted e, squared distance d2) within the radius, grouped by query
-    (qi non-decreasing), the nearest predicted index per query, ties to the lowest index; -1 for queries
-    without a candidate."""
-    idx = np.full(n_obs, -1, dtype=np.int64)
-    if len(qi) == 0:
-        return idx
-    new = np.empty(len(qi), dtype=bool)
-    new[0] = True
-    np.not_equal(qi[1:], qi[:-1], out=new[1:])
-    if new.all():  # one candidate per query: nothing to choose
-        idx[qi] = e
-        return idx
-    starts = np.flatnonzero(new)
-    group = np.cumsum(new) - 1
-    tie = d2 == np.minimum.reduceat(d2, starts)[group]
-    idx[qi[starts]] = np.minimum.reduceat(np.where(tie, e, np.iinfo(np.int64).max), starts)
-    return idx
+@dataclass(frozen=True)
+class KVectorTable:
+    """One axis of a :class:`DKVLUT`: paper 000's Table 1 (eqs. 1-3).
+
+    Attributes
+    ----------
+    sorted_values : ndarray, shape (W,)
+        ``S``, ascending, px.
+    order : ndarray of int, shape (W,)
+        ``R`` (0-based predicted indices): ``sorted_values[j] == coordinate[order[j]]``.
+    k : ndarray of int, shape (W,)
+        ``K`` (``k[i - 1]`` is the paper's ``K(i)``).
+    a1, b1 : float
+        The line ``h(i) = a1 i + b1`` (1-based i).
+    """
+
+    sorted_values: np.ndarray
+    order: np.ndarray
+    k: np.ndarray
+    a1: float
+    b1: float
 
 
 class DKVLUT:
-    """Paper 000's double k-vector lookup table over the predicted star points.
+    """Paper 000's double k-vector lookup table over the predicted star points (a thin object over
+    :func:`startracker.kernels.track.dkvlut_build` and :func:`~startracker.kernels.track.dkvlut_match`).
 
     Parameters
     ----------
     predicted_xy : array_like, shape (W, 2)
         Predicted spot centroids (column, row) in px, W >= 1, in any order.
+    validate : bool
+        False skips the checks: for a caller passing a C-contiguous float64 (W, 2) array of finite points.
 
     Attributes
     ----------
-    kx, ky : KVector
+    kx, ky : KVectorTable
         The tables of eqs. 1-3 per axis: ``kx.sorted_values`` = S_x, ``kx.order`` = R_x (0-based),
         ``kx.k`` = K_x, ``kx.a1``, ``kx.b1``.
 
     Notes
     -----
-    The intersection of eq. 6 is computed without sets: walking the shorter candidate lists (x or y over the
-    whole frame), a candidate belongs to the other axis' set when its row in that axis' table (the inverse
+    The intersection of eq. 6 is computed without sets: walking the shorter of an observed point's two
+    candidate lists, a candidate belongs to the other axis' set when its row in that axis' table (the inverse
     permutation of R) lies inside that axis' range ``[u_a, u_b]``, an O(1) test.
     """
 
-    __slots__ = ("xy", "kx", "ky", "n", "_xy_t", "_k_table", "_row_offset", "_line", "_degenerate", "_cross")
+    __slots__ = ("xy", "n", "tables")
 
     def __init__(self, predicted_xy, *, validate: bool = True):
-        # validate=False: the caller passes a float64 (W, 2) array of finite points
-        xy = _check_points(predicted_xy, "predicted_xy") if validate else predicted_xy
+        xy = np.ascontiguousarray(_check_points(predicted_xy, "predicted_xy")) if validate else predicted_xy
         if len(xy) == 0:
             raise ValueError("predicted_xy must contain at least one point")
         self.xy = xy
-        self.n = n = len(xy)
-        self._xy_t = np.ascontiguousarray(xy.T)  # (2, W): x row, y row
-        self.kx = KVector(self._xy_t[0])
-        self.ky = KVector(self._xy_t[1])
-        # Eq. 5 in one gather for both axes: rows u_a = K(i_a) (1-based) -> 0-based start K(i_a) - 1,
-        # u_b = K(i_b) -> 0-based exclusive stop K(i_b); x then y.
-        kx, ky = self.kx.k, self.ky.k
-        table = np.concatenate((kx, kx, ky, ky))
-        table[:n] -= 1
-        table[2 * n : 3 * n] -= 1
-        table[0] = table[2 * n] = 0  # K(1) - 1 = -1 -> row 0 (K(i) >= 1 for i >= 2)
-        self._k_table = table
-        self._row_offset = np.array([[-1], [n - 1], [2 * n - 1], [3 * n - 1]], dtype=np.int64)
-        # Eq. 4 as h = x / a1 + (∓r ∓ tol - b1) / a1 with Python floats; the tolerance (1e-9 of the coordinate
-        # scale) widens every range so floor/ceil rounding can never drop a point.
-        line, deg = [], []
-        for kv in (self.kx, self.ky):
-            s0, s1, a1, b1 = float(kv.sorted_values[0]), float(kv.sorted_values[-1]), float(kv.a1), float(kv.b1)
-            # Coordinates (nearly) all equal: the line is meaningless in floating point; every query
-            # touching [S(1), S(l_s)] gets the whole table, still a superset of the answer.
-            degenerate = not (a1 > 1e-9 * max(1.0, abs(s0), abs(s1)))
-            deg.append(degenerate)
-            line.append((0.0 if degenerate else 1.0 / a1, b1, 1e-9 * (abs(s0) + abs(s1) + a1), s0, s1))
-        self._line = line
-        self._degenerate = deg
-        self._cross = [None, None]
+        self.n = len(xy)
+        #: ``(order, k, line, cross)`` of :func:`startracker.kernels.track.dkvlut_build`
+        self.tables = track_kernels.dkvlut_build(xy)
 
-    def _ranges(self, obs_t: np.ndarray, r: float) -> np.ndarray:
-        """Eqs. 4-5 for both axes: rows (start_x, stop_x, start_y, stop_y) of 0-based half-open slices
-        ``[K(i_a) - 1, K(i_b))`` of the sorted tables (the paper's 1-based ``u ∈ [K(i_a), K(i_b)]``)."""
-        (ix, bx, tx, _, _), (iy, by, ty, _, _) = self._line
-        h = np.repeat(obs_t, 2, axis=0)  # x_p, x_p, y_p, y_p
-        h *= np.array([[ix], [ix], [iy], [iy]])
-        h += np.array([[(-r - tx - bx) * ix], [(r + tx - bx) * ix], [(-r - ty - by) * iy], [(r + ty - by) * iy]])
-        if not np.isfinite(h.sum()):  # only for coordinates near the float range limits
-            h[0::2] = np.nan_to_num(h[0::2], nan=1.0)
-            h[1::2] = np.nan_to_num(h[1::2], nan=float(self.n))
-        np.clip(h, 1, self.n, out=h)  # i in [1, l_s]; for the i_a rows truncation below is the floor
-        np.ceil(h[1::2], out=h[1::2])  # i_b = ceil(...)
-        i = h.astype(np.int64)
-        i += self._row_offset
-        u = self._k_table.take(i)
-        for axis, deg in enumerate(self._degenerate):
-            if deg:
-                s0, s1 = self._line[axis][3:]
-                o = obs_t[axis]
-                u[2 * axis] = 0
-                u[2 * axis + 1] = np.where((o + r >= s0) & (o - r <= s1), self.n, 0)
-        return u
+    def _axis(self, a: int) -> KVectorTable:
+        order, k, line, _ = self.tables
+        return KVectorTable(self.xy[order[a], a], order[a], k[a], float(line[a, 5]), float(line[a, 1]))
+
+    @property
+    def kx(self) -> KVectorTable:
+        return self._axis(0)
+
+    @property
+    def ky(self) -> KVectorTable:
+        return self._axis(1)
 
     def candidate_ranges(self, observed_xy, radius_px):
         """Candidate table rows of every observed point on both axes (eqs. 4-5).
@@ -205,9 +174,10 @@ class DKVLUT:
             ``kx.order[start_x[q]:stop_x[q]]`` is R_x(u_x) for observed point q (0-based predicted indices),
             i.e. the paper's 1-based rows ``u_x = K_x(i_a) .. K_x(i_b)``.
         """
-        obs = _check_points(observed_xy, "observed_xy")
-        u = self._ranges(np.ascontiguousarray(obs.T), _check_radius(radius_px))
-        return (u[0], u[1]), (u[2], u[3])
+        obs = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
+        order, k, line, _ = self.tables
+        u = track_kernels.dkvlut_ranges(order, k, line, obs, _check_radius(radius_px))
+        return (u[:, 0], u[:, 1]), (u[:, 2], u[:, 3])
 
     def candidates(self, observed_xy, radius_px) -> tuple[np.ndarray, np.ndarray]:
         """The intersection set R_P of eq. 6 for every observed point, as (query, predicted) pairs.
@@ -217,67 +187,20 @@ class DKVLUT:
         query_index, predicted_index : ndarray of int, shape (P,)
             Pairs with the predicted point in both the x and the y candidate set, grouped by query.
         """
-        obs = _check_points(observed_xy, "observed_xy")
-        return self._intersection(np.ascontiguousarray(obs.T), _check_radius(radius_px))
+        obs = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
+        order, k, line, cross = self.tables
+        return track_kernels.dkvlut_candidates(order, k, line, cross, obs, _check_radius(radius_px))
 
-    def _cross_rows(self, axis: int) -> np.ndarray:
-        """Row in the other axis' table of each row of ``axis``'s table: ``rank_other[R_axis]``."""
-        if self._cross[axis] is None:
-            tables = (self.kx, self.ky)
-            rank = np.empty(self.n, dtype=np.int64)
-            rank[tables[1 - axis].order] = np.arange(self.n)
-            self._cross[axis] = rank.take(tables[axis].order)
-        return self._cross[axis]
+    def match(self, observed_xy, radius_px, *, validate: bool = True) -> np.ndarray:
+        """Nearest predicted point within ``radius_px`` of every observed point (see :func:`match_stars`).
 
-    def _intersection(self, obs_t: np.ndarray, r: float):
-        u = self._ranges(obs_t, r)
-        counts = u[1::2] - u[0::2]  # >= 0: i_a <= i_b and K is non-decreasing
-        tot = counts.sum(axis=1)
-        a = 0 if tot[0] <= tot[1] else 1  # walk the axis with fewer candidates
-        cnt = counts[a]
-        nq = obs_t.shape[1]
-        # One repeat expands, per candidate: its query, its offset into the table, the other axis' range.
-        rows = np.empty((4, nq), dtype=np.int64)
-        rows[0] = np.arange(nq)
-        np.cumsum(cnt, out=rows[1])
-        rows[1] -= cnt
-        rows[1] -= u[2 * a]
-        rows[2:] = u[2 - 2 * a : 4 - 2 * a]
-        rep = np.repeat(rows, cnt, axis=1)
-        pos = np.arange(int(tot[a])) - rep[1]  # walked table rows u in [u_a, u_b]
-        ro = self._cross_rows(a).take(pos)  # the same stars' rows in the other axis' table
-        keep = np.flatnonzero((ro >= rep[2]) & (ro < rep[3]))  # R_x(u_x) ∩ R_y(u_y), eq. 6
-        return rep[0].take(keep), (self.kx, self.ky)[a].order.take(pos.take(keep))
-
-    def match(self, observed_xy, radius_px) -> np.ndarray:
-        """Nearest predicted point within ``radius_px`` of every observed point (see :func:`match_stars`)."""
-        obs = _check_points(observed_xy, "observed_xy")
-        r = _check_radius(radius_px)
-        if len(obs) == 0:
-            return np.empty(0, dtype=np.int64)
-        return self._match(obs, r)
-
-    def _match(self, obs: np.ndarray, r: float) -> np.ndarray:
-        obs_t = np.ascontiguousarray(obs.T)
-        qi, e = self._intersection(obs_t, r)
-        d = obs_t.take(qi, axis=1)
-        d -= self._xy_t.take(e, axis=1)
-        d *= d
-        d2 = d[0] + d[1]  # the shared expression (x_q - x_p)² + (y_q - y_p)²
-        ok = np.flatnonzero(d2 <= r * r)
-        return _nearest_per_query(qi.take(ok), e.take(ok), d2.take(ok), len(obs))
-
-
-def _match_brute(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
-    out = np.full(len(obs), -1, dtype=np.int64)
-    block = max(1, _BRUTE_BLOCK // max(len(pred), 1))
-    r2 = r * r
-    for s in range(0, len(obs), block):  # blocks only bound memory; each block is all-pairs vectorised
-        o = obs[s : s + block]
-        d2 = (o[:, 0, None] - pred[None, :, 0]) ** 2 + (o[:, 1, None] - pred[None, :, 1]) ** 2
-        j = np.argmin(d2, axis=1)  # first minimum: ties to the lowest index
-        out[s : s + block] = np.where(d2[np.arange(len(o)), j] <= r2, j, -1)
-    return out
+        ``validate=False``: a C-contiguous float64 (Q, 2) array of finite points and a float radius >= 0.
+        """
+        if validate:
+            observed_xy = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
+            radius_px = _check_radius(radius_px)
+        order, k, line, cross = self.tables
+        return track_kernels.dkvlut_match(self.xy, order, k, line, cross, observed_xy, radius_px)
 
 
 def _match_kdtree(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
@@ -297,7 +220,7 @@ def _match_kdtree(pred: np.ndarray, obs: np.ndarray, r: float) -> np.ndarray:
         # The tree's own arithmetic may order near-ties differently: settle them with the shared rule.
         amb = found & (j[:, 1] < n) & (d[:, 1] <= d[:, 0] * (1 + 1e-9) + 1e-12)
         if amb.any():
-            idx[amb] = _match_brute(pred, obs[amb], r)
+            idx[amb] = track_kernels.match_brute(pred, np.ascontiguousarray(obs[amb]), r)
     return idx.astype(np.int64)
 
 
@@ -313,11 +236,11 @@ def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut", *,
     radius_px : float
         Star-neighbourhood radius r >= 0, px (see :func:`prediction_radius_px` for the rule).
     method : {"dkvlut", "brute", "kdtree"}
-        Paper 000's double k-vector lookup table, the all-pairs "existing method", or scipy's cKDTree.
-        All three return the same answer.
+        Paper 000's double k-vector lookup table, the all-pairs "existing method" (both compiled), or scipy's
+        cKDTree. All three return the same answer.
     validate : bool
-        False skips the checks: for a caller passing float64 (W, 2) and (Q, 2) arrays of finite points, a float
-        radius >= 0 and a known method (the star tracker's per-frame path).
+        False skips the checks: for a caller passing C-contiguous float64 (W, 2) and (Q, 2) arrays of finite
+        points, a float radius >= 0 and a known method (the star tracker's per-frame path).
 
     Returns
     -------
@@ -333,17 +256,17 @@ def match_stars(predicted_xy, observed_xy, radius_px, method: str = "dkvlut", *,
     if validate:
         if method not in MATCH_METHODS:
             raise ValueError(f"method must be one of {MATCH_METHODS}, got {method!r}")
-        pred = _check_points(predicted_xy, "predicted_xy")
-        obs = _check_points(observed_xy, "observed_xy")
+        pred = np.ascontiguousarray(_check_points(predicted_xy, "predicted_xy"))
+        obs = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
         r = _check_radius(radius_px)
     else:
         pred, obs, r = predicted_xy, observed_xy, radius_px
     if len(pred) == 0 or len(obs) == 0:
         return np.full(len(obs), -1, dtype=np.int64)
     if method == "dkvlut":
-        return DKVLUT(pred, validate=False)._match(obs, r)
+        return track_kernels.dkvlut_build_match(pred, obs, r)
     if method == "brute":
-        return _match_brute(pred, obs, r)
+        return track_kernels.match_brute(pred, obs, r)
     return _match_kdtree(pred, obs, r)
 
 
@@ -437,48 +360,68 @@ def predict_star_positions(
     if not isinstance(catalog, StarCatalog):
         raise TypeError("catalog must be a startracker.catalog.StarCatalog")
     q0 = quat_normalize(as_float_array(q_body_to_icrs, "q_body_to_icrs", last_dim=4, ndim=1))
-    t = np.atleast_1d(as_float_array(times_s, "times_s"))
+    t = np.ascontiguousarray(np.atleast_1d(as_float_array(times_s, "times_s")))
     if t.ndim != 1 or len(t) == 0:
         raise ValueError(f"times_s must be a non-empty 1-D array, got shape {t.shape}")
     t_ref = float(as_float_array(t_ref_s, "t_ref_s"))
-    w = np.zeros(3) if omega_body is None else _check_vec3(omega_body, "omega_body")
-    a = np.zeros(3) if alpha_body is None else _check_vec3(alpha_body, "alpha_body")
+    w = np.zeros(3) if omega_body is None else np.ascontiguousarray(_check_vec3(omega_body, "omega_body"))
+    a = np.zeros(3) if alpha_body is None else np.ascontiguousarray(_check_vec3(alpha_body, "alpha_body"))
     margin = float(as_float_array(margin_px, "margin_px"))
     if margin < 0:
         raise ValueError(f"margin_px must be >= 0, got {margin_px}")
     return _predict(camera, catalog, q0, t, t_ref, w, a, margin)
 
 
+def _camera_model(camera: Camera):
+    """The projection parameters ``(f_mm, k1_per_mm2, pixel_mm, ppx, ppy, cos θ, sin θ)`` of the kernels'
+    camera model (:func:`startracker.kernels.track.project_frame`), or None for a camera class that projects
+    by a model of its own (then its ``project``/``unproject`` methods are called).
+
+    A plain :class:`~startracker.optics.Camera` has θ = 0; a subclass with a float ``rotation_rad`` (the 3CMOS
+    channel cameras of :mod:`startracker.color`) is the same pinhole on a detector rotated in-plane by θ about
+    the principal point.
+    """
+    cls = type(camera)
+    if cls.project is Camera.project and cls.unproject is Camera.unproject:
+        c, s = 1.0, 0.0
+    else:
+        rot = getattr(camera, "rotation_rad", None)
+        if not isinstance(rot, (float, int)) or isinstance(rot, bool):
+            return None
+        c, s = (1.0, 0.0) if rot == 0.0 else (math.cos(rot), math.sin(rot))
+    ppx, ppy = camera.principal_point
+    return (float(camera.focal_length_mm), float(camera.distortion_k1_per_mm2), camera.pixel_size_mm, float(ppx),
+            float(ppy), c, s)
+
+
 def _predict(camera: Camera, catalog: StarCatalog, q0: np.ndarray, t: np.ndarray,
              t_ref: float, w: np.ndarray, a: np.ndarray, margin: float) -> PredictedStars:
     """The work of :func:`predict_star_positions`: ``q0`` a unit canonical (4,) float64 quaternion (as
     ``quat_normalize`` returns), ``t`` (N,) float64, ``w`` and ``a`` (3,) float64, ``margin`` >= 0."""
-    q_body = rk.quat_integrate(q0, w, t - t_ref, a).reshape(len(t), 4)
-    q_cam = rk.quat_multiply(q_body, np.asarray(camera.q_cam_to_body))  # cam -> body -> icrs
-    r_cam_to_icrs = rk.quat_to_matrix(q_cam)  # (N, 3, 3)
-
+    q_body, r_cam_to_icrs, mid, spread = track_kernels.propagate_attitudes(
+        q0, w, a, t - t_ref, np.array(camera.q_cam_to_body))
     # Candidate stars: one cone around the mean boresight wide enough for the whole frame.
-    bore = r_cam_to_icrs[:, :, 2]
-    mid = bore.mean(axis=0)
-    mid /= np.linalg.norm(mid)
-    spread = float(np.max(np.arccos(np.clip(bore @ mid, -1.0, 1.0))))
-    fpx = camera.focal_length_px
-    cone = min(np.pi, camera.half_diagonal_fov_rad + spread + margin / fpx + 0.02)
-    cand = catalog.cone_search(mid, cone)
-    n_t = len(t)
+    cone = min(math.pi, camera.half_diagonal_fov_rad + spread + margin / camera.focal_length_px + 0.02)
+    cand = catalog.cone_search(mid, cone, validate=False)
+    wdt, hgt = camera.resolution
     if len(cand) == 0:
         e = np.empty(0, dtype=np.int64)
         return PredictedStars(np.empty((0, 2)), e, e.copy(), np.empty(0, dtype=bool), t, q_body)
-    v_icrs = catalog.vectors[cand]  # (S, 3)
-    v_cam = v_icrs[None] @ r_cam_to_icrs  # (R^T v)^T = v^T R per instant, (N, S, 3)
+    model = _camera_model(camera)
+    if model is not None:
+        xy, star, inst, on_det = track_kernels.project_frame(catalog.vectors[cand], cand, r_cam_to_icrs, *model,
+                                                             wdt, hgt, float(margin))
+        return PredictedStars(xy, star, inst, on_det, t, q_body)
+    # A camera with a projection of its own: through its methods.
+    n_t = len(t)
+    v_cam = catalog.vectors[cand][None] @ r_cam_to_icrs  # (R^T v)^T = v^T R per instant, (N, S, 3)
     xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
-    wdt, hgt = camera.resolution
     x, y = xy[:, 0], xy[:, 1]
     keep = in_front & (x >= -0.5 - margin) & (x <= wdt - 0.5 + margin) & (y >= -0.5 - margin) & (y <= hgt - 0.5 + margin)
     on_det = (x >= -0.5) & (x <= wdt - 0.5) & (y >= -0.5) & (y <= hgt - 0.5)
     star = np.tile(cand, n_t)
     inst = np.repeat(np.arange(n_t), len(cand))
-    return PredictedStars(xy[keep], star[keep], inst[keep], on_det[keep], t, q_body)
+    return PredictedStars(np.ascontiguousarray(xy[keep]), star[keep], inst[keep], on_det[keep], t, q_body)
 
 
 def _as_cov3(a, name: str) -> np.ndarray:
@@ -554,17 +497,20 @@ def prediction_sigma_px(camera: Camera, cov_theta_body_rad2, dt_s=0.0, cov_omega
     """
     if validate:
         dt_s = as_float_array(dt_s, "dt_s")
-    dt = float(np.max(np.abs(dt_s))) if np.size(dt_s) else 0.0
-    pt = prediction_covariance(cov_theta_body_rad2, dt, cov_omega_body, cov_alpha_body, validate=validate)
-    return _sigma_px_from_cov(camera, pt)
-
-
-def _sigma_px_from_cov(camera: Camera, pt: np.ndarray) -> float:
-    rcb = camera.r_cam_to_body
-    p00, p11, p22 = (rcb.T @ pt @ rcb).reshape(-1)[::4].tolist()
+        p = _as_cov3(cov_theta_body_rad2, "cov_theta_body_rad2")
+        pw = _as_cov3(cov_omega_body, "cov_omega_body")
+        pa = _as_cov3(cov_alpha_body, "cov_alpha_body")
+    else:
+        p, pw, pa = (c if _is_cov3(c) else _as_cov3(c, name) for c, name in (
+            (cov_theta_body_rad2, "cov_theta_body_rad2"), (cov_omega_body, "cov_omega_body"),
+            (cov_alpha_body, "cov_alpha_body")))
+    if type(dt_s) is float:
+        dt = abs(dt_s)
+    else:
+        dt = float(np.max(np.abs(dt_s))) if np.size(dt_s) else 0.0
     w, h = camera.resolution
-    rho = math.hypot(w, h) / 2.0
-    return math.sqrt(camera.focal_length_px**2 * max(p00, p11, 0.0) + rho**2 * max(p22, 0.0))
+    return track_kernels.prediction_sigma_px(camera.r_cam_to_body, p, pw, pa, dt, camera.focal_length_px,
+                                             math.hypot(w, h) / 2.0)
 
 
 def prediction_radius_px(
@@ -624,21 +570,6 @@ class InstantAttitudes:
         return np.flatnonzero(~self.ok)
 
 
-def _unique_assignment(obs: np.ndarray, pred_xy: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Several observed points on one predicted point: keep the nearest (ties: lowest observed index)."""
-    out = np.full(len(idx), -1, dtype=np.int64)
-    q = np.flatnonzero(idx >= 0)
-    if len(q) == 0:
-        return out
-    p = idx[q]
-    d2 = np.sum((obs[q] - pred_xy[p]) ** 2, axis=1)
-    o = np.lexsort((q, d2, p))
-    ps = p[o]
-    first = np.r_[True, ps[1:] != ps[:-1]]
-    out[q[o][first]] = ps[first]
-    return out
-
-
 def attitudes_per_instant(
     observed_xy,
     match_idx,
@@ -653,8 +584,9 @@ def attitudes_per_instant(
 ) -> InstantAttitudes:
     """Group matched detections by exposure instant and solve one Wahba problem per instant.
 
-    All instants are solved in one :func:`~startracker.attitude.solve_wahba_batch` call. One observed spot
-    per predicted spot (the nearest); then stars whose residual exceeds ``outlier_k_sigma`` times the
+    Compiled (:func:`startracker.kernels.track.solve_instants`): one observed spot per predicted spot (the
+    nearest, ties to the lowest observed index), then per instant the SVD Wahba solution with the QUEST
+    covariance (:func:`startracker.kernels.attitude.solve_wahba_one`); stars whose residual exceeds ``outlier_k_sigma`` times the
     angular noise are dropped (the worst per instant first, until none remain) and the instant re-solved.
 
     Parameters
@@ -682,8 +614,8 @@ def attitudes_per_instant(
     """
     if not validate:
         return _solve_instants(observed_xy, match_idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma)
-    obs = _check_points(observed_xy, "observed_xy")
-    idx = np.asarray(match_idx, dtype=np.int64)
+    obs = np.ascontiguousarray(_check_points(observed_xy, "observed_xy"))
+    idx = np.ascontiguousarray(match_idx, dtype=np.int64)
     if idx.shape != (len(obs),):
         raise ValueError(f"match_idx must have shape ({len(obs)},), got {idx.shape}")
     if np.any(idx >= len(prediction)) or np.any(idx < -1):
@@ -696,51 +628,114 @@ def attitudes_per_instant(
 
 
 def _solve_instants(obs, idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma):
-    """The work of :func:`attitudes_per_instant` on checked inputs."""
-    n_t = len(prediction.times_s)
-    assign = _unique_assignment(obs, prediction.xy, idx)
-    q_obs = np.flatnonzero(assign >= 0)
-    p = assign[q_obs]
-    inst = prediction.instant[p]
-    # Pad per instant: (N, Kmax, 3).
-    order = np.lexsort((q_obs, inst))
-    q_obs, p, inst = q_obs[order], p[order], inst[order]
-    counts = np.bincount(inst, minlength=n_t)
-    kmax = max(int(counts.max()) if len(counts) else 0, 2)
-    slot = np.arange(len(inst)) - np.repeat(np.cumsum(counts) - counts, counts)
-    v_body = np.zeros((n_t, kmax, 3))
-    v_ref = np.zeros((n_t, kmax, 3))
-    mask = np.zeros((n_t, kmax), dtype=bool)
-    v_body[..., 2] = 1.0
-    v_ref[..., 2] = 1.0
-    if len(q_obs):
-        v_body[inst, slot] = camera.unproject(obs[q_obs]) @ camera.r_cam_to_body.T
-        v_ref[inst, slot] = catalog.vectors[prediction.star_index[p]]
-        mask[inst, slot] = True
+    """The work of :func:`attitudes_per_instant` on checked inputs (two kernel calls)."""
+    model = _camera_model(camera)
+    if model is not None:
+        v_body = track_kernels.unproject_to_body(obs, *model, camera.r_cam_to_body)
+    elif len(obs):
+        v_body = np.ascontiguousarray(camera.unproject(obs) @ camera.r_cam_to_body.T)
+    else:
+        v_body = np.empty((0, 3))
     sigma_rad = sigma_px / camera.focal_length_px
-    thr = outlier_k_sigma * sigma_rad
-    n_out = 0
-    # solve_wahba_batch's input checks and normalisation, once for all passes
-    b_unit = v_body / rk.vector_norm(v_body, keepdims=True)
-    r_unit = v_ref / rk.vector_norm(v_ref, keepdims=True)
-    sigma_b = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), b_unit.shape[:2])
-    for _ in range(kmax):  # a handful of passes: one outlier per instant per pass
-        q, cov, rms, ok = wahba_kernels.solve_wahba_batch(b_unit, r_unit, sigma_b, mask)
-        rb = np.einsum("bij,bkj->bki", rk.quat_to_matrix(q), v_body)
-        ang = np.arctan2(rk.vector_norm(rk.cross(rb, v_ref)), np.add.reduce(rb * v_ref, axis=-1))
-        ang = np.where(mask, ang, -1.0)
-        worst = np.argmax(ang, axis=1)
-        bad = (ang[np.arange(n_t), worst] > thr) & (mask.sum(axis=1) > 2)
-        if not bad.any():
-            break
-        mask[np.flatnonzero(bad), worst[bad]] = False
-        n_out += int(bad.sum())
-    n_used = mask.sum(axis=1)
-    ok = ok & (n_used >= int(min_stars))
-    # Detections dropped as outliers lose their assignment.
-    if len(q_obs):
-        kept = mask[inst, slot]
-        assign[q_obs[~kept]] = -1
-    cov = np.where(ok[:, None, None], cov, np.inf)
-    rms = np.where(ok, rms, np.inf)
-    return InstantAttitudes(prediction.times_s.copy(), q, cov, rms, n_used, ok, assign, n_out)
+    q, cov, rms, n_used, ok, assign, n_out = track_kernels.solve_instants(
+        obs, v_body, idx, prediction.xy, prediction.instant, prediction.star_index, catalog.vectors,
+        len(prediction.times_s), float(sigma_rad), int(min_stars), float(outlier_k_sigma * sigma_rad))
+    return InstantAttitudes(prediction.times_s.copy(), q, cov, rms, n_used, ok, assign, int(n_out))
+
+
+# --------------------------------------------------------------------------- synthetic test frames
+@dataclass(frozen=True)
+class SyntheticFrame:
+    """Detections of one (multi-)exposure frame built straight from the catalog (no pixels).
+
+    Attributes
+    ----------
+    xy : ndarray, shape (K, 2)
+        Detections in scan order (row, then column), px.
+    intensity : ndarray, shape (K,)
+        Relative spot brightness (∝ 10^(-0.4 V) / N for stars).
+    star_index : ndarray of int, shape (K,)
+        Catalog row, -1 for false objects.
+    instant : ndarray of int, shape (K,)
+        Exposure instant, -1 for false objects.
+    exposure_times_s : ndarray, shape (N,)
+    q_body_to_icrs : ndarray, shape (N, 4)
+        True body attitude at each instant.
+    xy_true : ndarray, shape (K, 2)
+        Noise-free positions (false objects: their drawn positions).
+    """
+
+    xy: np.ndarray
+    intensity: np.ndarray
+    star_index: np.ndarray
+    instant: np.ndarray
+    exposure_times_s: np.ndarray
+    q_body_to_icrs: np.ndarray
+    xy_true: np.ndarray
+
+
+def synthetic_frame(
+    camera: Camera,
+    catalog: StarCatalog,
+    q_body_to_icrs,
+    omega_body,
+    exposure_times_s,
+    rng: np.random.Generator,
+    t_ref_s: float = 0.0,
+    alpha_body=None,
+    sigma_px: float = 0.0,
+    n_false: int = 0,
+    p_detect: float = 1.0,
+) -> SyntheticFrame:
+    """Truth detections of a multi-exposure frame during a slew, for tests and benchmarks.
+
+    Stars of ``catalog`` are projected at each exposure instant of the attitude trajectory
+    ``q(t) = quat_integrate(q_body_to_icrs, omega_body, t - t_ref_s, alpha_body)``; each spot on the detector
+    is kept with probability ``p_detect``, gets Gaussian noise of ``sigma_px`` per axis, and ``n_false``
+    false objects are drawn uniformly over the detector. Detections come out in scan order.
+
+    Parameters
+    ----------
+    camera, catalog
+    q_body_to_icrs : array_like, shape (4,)
+        True attitude at ``t_ref_s``.
+    omega_body : array_like, shape (3,)
+        True body rate, rad/s.
+    exposure_times_s : array_like, shape (N,)
+    rng : numpy.random.Generator
+    t_ref_s : float
+    alpha_body : array_like, shape (3,), optional
+        True angular acceleration, rad/s².
+    sigma_px : float
+        Centroid noise, px (1σ per axis).
+    n_false : int
+        False objects.
+    p_detect : float
+        Detection probability of a star spot.
+
+    Returns
+    -------
+    SyntheticFrame
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError("rng must be a numpy.random.Generator")
+    if sigma_px < 0 or n_false < 0 or not (0.0 <= p_detect <= 1.0):
+        raise ValueError("sigma_px and n_false must be >= 0 and p_detect in [0, 1]")
+    pred = predict_star_positions(camera, catalog, q_body_to_icrs, exposure_times_s, t_ref_s, omega_body, alpha_body)
+    n_t = len(pred.times_s)
+    keep = rng.random(len(pred)) < p_detect
+    xy_true = pred.xy[keep]
+    star = pred.star_index[keep]
+    inst = pred.instant[keep]
+    xy = xy_true + rng.normal(0.0, sigma_px, xy_true.shape) if sigma_px > 0 else xy_true.copy()
+    inten = 1e3 * 10 ** (-0.4 * (catalog.vmag[star] - 6.0)) / n_t
+    w, h = camera.resolution
+    fxy = rng.uniform([-0.5, -0.5], [w - 0.5, h - 0.5], (int(n_false), 2))
+    fint = 1e3 * 10 ** (-0.4 * rng.uniform(3.0, 7.0, int(n_false))) / n_t
+    xy = np.concatenate([xy, fxy])
+    xy_true = np.concatenate([xy_true, fxy])
+    inten = np.concatenate([inten, fint])
+    star = np.concatenate([star, np.full(int(n_false), -1)])
+    inst = np.concatenate([inst, np.full(int(n_false), -1)])
+    o = np.lexsort((xy[:, 0], np.floor(xy[:, 1])))
+    return SyntheticFrame(xy[o], inten[o], star[o], inst[o], pred.times_s, pred.q_body_to_icrs, xy_true[o])

@@ -111,3 +111,21 @@ def test_wahba_is_invariant_to_the_order_of_the_vectors(seed, k):
     if s1.success:
         assert quat_angle_between(s1.q_meas_to_ref, s2.q_meas_to_ref) < 1e-9
         np.testing.assert_allclose(s1.covariance_rad2, s2.covariance_rad2, rtol=1e-8, atol=1e-20)
+
+
+@pytest.mark.parametrize("angle", [np.pi, np.pi - 1e-9, np.pi / 2, 1e-12, 0.0])
+def test_any_rotation_angle_even_a_half_turn_equals_scipy(angle):
+    # Davenport's eigenvector from the adjugate has no singular attitude (QUEST's Gibbs vector does at π).
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(31)
+    for _ in range(20):
+        axis = rng.normal(size=3)
+        truth = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle)
+        b = random_fov_vectors(rng, 12)
+        r = noisy_unit(truth.apply(b), 1e-6, rng)
+        sol = solve_wahba(b, r, 1e-6)
+        ref, _ = Rotation.align_vectors(r, b)
+        assert sol.success
+        err = quat_angle_between(sol.q_meas_to_ref, ref.as_quat()[[3, 0, 1, 2]])
+        assert err < 1e-11

@@ -195,3 +195,158 @@ def test_projection_kernel_equals_the_pinhole_model():
             r2 = np.sum(xm**2, axis=1, keepdims=True)
             ref = xm * (1 + cam.distortion_k1_per_mm2 * r2) / cam.pixel_size_mm + np.asarray(cam.principal_point)
             np.testing.assert_allclose(xy[ok], ref, rtol=1e-12, atol=1e-9)
+
+
+# ------------------------------------------------------------------------------- tracking kernels
+def _numpy_kvector(values):
+    """Paper 000 eqs. 1-3 written directly with numpy (stable sort, K(i) = #{S <= h(i)})."""
+    order = np.argsort(values, kind="stable")
+    s = values[order]
+    n = len(s)
+    d = (s[-1] - s[0]) / (n - 1) if n > 1 else 0.0
+    if d <= 0.0:
+        d = max(1.0, abs(s[0])) * 1e-9
+    a1 = n * d / (n - 1) if n > 1 else d
+    b1 = s[0] - d / 2.0 - a1
+    k = np.searchsorted(s, a1 * np.arange(1, n + 1) + b1, side="right")
+    k[0], k[-1] = 0, n
+    return order, s, k, a1, b1
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_kvector_kernel_and_bucket_sort_equal_numpy(seed):
+    from startracker.kernels.kvector import kvector_build, stable_argsort
+
+    rng = np.random.default_rng(seed)
+    cases = [rng.uniform(0, 2048, 450), rng.integers(-3, 4, 200).astype(float),  # many ties
+             np.r_[rng.normal(0, 1e-6, 100), 1e6],  # one far value: a crowded bin
+             np.full(7, 3.5), rng.standard_cauchy(300), np.array([2.0])]
+    for v in cases:
+        assert np.array_equal(stable_argsort(v), np.argsort(v, kind="stable"))
+        order, s, k, a1, b1 = kvector_build(v)
+        ro, rs, rkk, ra1, rb1 = _numpy_kvector(v)
+        assert np.array_equal(order, ro) and np.array_equal(s, rs) and np.array_equal(k, rkk)
+        assert a1 == ra1 and b1 == rb1
+
+
+def test_cone_search_equals_explicit_dot_products():
+    from startracker.catalog import load_catalog
+
+    cat = load_catalog(6.0)
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        radius = rng.choice([rng.uniform(1e-3, 0.05), rng.uniform(0.05, 0.5), rng.uniform(0.5, np.pi)])
+        ang = np.arccos(np.clip(cat.vectors @ d, -1.0, 1.0))
+        got = cat.cone_search(d * 3.0, radius)  # any norm
+        assert np.all(np.diff(got) > 0)
+        clear = np.abs(ang - radius) > 1e-9  # stars on the rim within rounding may go either way
+        assert set(got.tolist()) & set(np.flatnonzero(clear).tolist()) == set(np.flatnonzero(clear & (ang <= radius)).tolist())
+        assert np.array_equal(cat.cone_search(d, radius, validate=False), got)
+    many = cat.cone_search(np.eye(3), 0.2)
+    assert [m.tolist() for m in many] == [cat.cone_search(e, 0.2).tolist() for e in np.eye(3)]
+
+
+def _wahba_svd_reference(b, r, w):
+    """Markley's SVD solution and the QUEST covariance, numpy."""
+    u, _, vt = np.linalg.svd((r * w[:, None]).T @ b)
+    u[:, 2] *= np.linalg.det(u) * np.linalg.det(vt)
+    info = w.sum() * np.eye(3) - (b * w[:, None]).T @ b
+    return u @ vt, np.linalg.inv(info)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_wahba_kernel_equals_svd_and_scipy(seed):
+    from startracker.kernels.attitude import solve_wahba_batch as kernel
+
+    rng = np.random.default_rng(seed)
+    for trial in range(300):
+        k = int(rng.integers(2, 40))
+        truth = Rotation.random(random_state=rng)
+        b = rng.normal(size=(k, 3))
+        b[:, 2] += rng.choice([0.0, 3.0, 60.0])  # whole sky, 20° and 1° fields
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        r = truth.apply(b) + rng.normal(0, 10 ** rng.uniform(-7, -3), (k, 3))
+        r /= np.linalg.norm(r, axis=1, keepdims=True)
+        sig = rng.uniform(0.5e-5, 2e-5, k)
+        q, cov, rms, ok = kernel(b[None], r[None], sig[None], np.ones((1, k), dtype=bool))
+        a_ref, cov_ref = _wahba_svd_reference(b, r, sig**-2)
+        a = Rotation.from_quat(q[0, [1, 2, 3, 0]]).as_matrix()
+        s = np.linalg.svd((r * sig[:, None] ** -2).T @ b, compute_uv=False)
+        gap = (s[1] + s[2]) / s.sum()  # the eigen-gap that conditions the attitude (narrow fields: small)
+        assert ok[0] and np.abs(a - a_ref).max() < 1e-14 / gap + 1e-14
+        np.testing.assert_allclose(cov[0], cov_ref, rtol=1e-8, atol=1e-8 * np.abs(cov_ref).max())
+        sp, _ = Rotation.align_vectors(r, b, weights=sig**-2)
+        assert np.abs(a - sp.as_matrix()).max() < 1e-12 / gap + 1e-12
+        ab = b @ a.T
+        ang = np.arctan2(np.linalg.norm(np.cross(ab, r), axis=1), np.sum(ab * r, axis=1))  # accurate when small
+        assert rms[0] == pytest.approx(np.sqrt(np.mean(ang**2)) * 180 / np.pi * 3600, rel=1e-6, abs=1e-9)
+
+
+def test_track_kernels_match_rule_against_numpy_brute_force():
+    from startracker.kernels import track as tk
+
+    rng = np.random.default_rng(12)
+    for _ in range(50):
+        pred = np.round(rng.uniform(0, 60, (int(rng.integers(1, 80)), 2)), int(rng.integers(0, 3)))  # exact ties
+        obs = np.round(rng.uniform(-5, 65, (int(rng.integers(0, 60)), 2)), 1)
+        r = float(rng.choice([0.0, 0.5, 2.0, 7.0]))
+        d2 = (obs[:, None, 0] - pred[None, :, 0]) ** 2 + (obs[:, None, 1] - pred[None, :, 1]) ** 2
+        ref = np.where(d2.min(axis=1, initial=np.inf) <= r * r, np.argmin(d2, axis=1) if len(obs) else 0, -1) if len(obs) else np.empty(0, int)
+        tables = tk.dkvlut_build(pred)
+        assert np.array_equal(tk.dkvlut_match(pred, *tables, obs, r), ref)
+        assert np.array_equal(tk.match_brute(pred, obs, r), ref)
+
+
+def test_prediction_sigma_kernel_equals_the_covariance_formula():
+    cam = camera_preset("paper000", q_cam_to_body=rot.quat_from_rotvec([0.2, 0.5, -0.3]))
+    rng = np.random.default_rng(13)
+    for _ in range(20):
+        a = [rng.normal(size=(3, 3)) for _ in range(3)]
+        p, pw, pa = (x @ x.T * s for x, s in zip(a, (1e-9, 1e-8, 1e-7)))
+        dt = rng.uniform(-0.2, 0.2, 5)
+        pt = p + pw * np.max(np.abs(dt)) ** 2 + pa * np.max(np.abs(dt)) ** 4 / 4
+        c = cam.r_cam_to_body.T @ pt @ cam.r_cam_to_body
+        rho = np.hypot(*cam.resolution) / 2
+        ref = np.sqrt(cam.focal_length_px**2 * max(c[0, 0], c[1, 1]) + rho**2 * c[2, 2])
+        assert prediction_sigma_px(cam, p, dt, pw, pa) == pytest.approx(ref, rel=1e-12)
+        assert prediction_sigma_px(cam, p, dt, pw, pa, validate=False) == pytest.approx(ref, rel=1e-12)
+
+
+_FRAME_SCRIPT = """
+import hashlib, numpy as np
+from startracker.catalog import load_catalog
+from startracker.optics import camera_preset
+from startracker.track import predict_star_positions, match_stars, attitudes_per_instant
+cam = camera_preset("paper000"); cat = load_catalog(6.0)
+rng = np.random.default_rng(4)
+q = np.array([0.5, 0.5, 0.5, 0.5]); t = np.linspace(0.0, 0.1, 11); w = np.radians([1.0, 8.0, 0.5])
+pred = predict_star_positions(cam, cat, q, t, 0.05, w, np.array([0.0, 0.1, 0.0]), 4.0)
+obs = pred.xy + rng.normal(0.0, 0.5, pred.xy.shape)
+h = hashlib.sha256()
+for m in ("dkvlut", "brute", "kdtree"):
+    idx = match_stars(pred.xy, obs, 3.0, m)
+    h.update(idx.tobytes())
+inst = attitudes_per_instant(obs, idx, pred, cam, cat, 0.5)
+for a in (pred.xy, pred.star_index, pred.q_body_to_icrs, inst.q_body_to_icrs, inst.covariance_rad2,
+          inst.residual_rms_arcsec, inst.assignment):
+    h.update(np.ascontiguousarray(a).tobytes())
+print(h.hexdigest())
+"""
+
+
+def test_tracking_kernels_bit_identical_across_processes_and_a_fresh_numba_cache(tmp_path):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONPATH=str(root))
+    fresh = subprocess.run([sys.executable, "-c", _FRAME_SCRIPT], cwd=root, env=env, capture_output=True, text=True,
+                           check=True).stdout.strip()
+    env.pop("NUMBA_CACHE_DIR")
+    cached = subprocess.run([sys.executable, "-c", _FRAME_SCRIPT], cwd=root, env=env, capture_output=True, text=True,
+                            check=True).stdout.strip()
+    assert len(fresh) == 64 and fresh == cached

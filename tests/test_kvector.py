@@ -41,3 +41,14 @@ def test_duplicates_and_constant_values():
     kv = KVector([3.0, 3.0, 3.0])
     assert sorted(kv.query(3.0, 3.0).tolist()) == [0, 1, 2]
     assert kv.query(3.1, 4.0).size == 0
+
+
+def test_compiled_kvector_equals_the_checked_kvector():
+    from startracker.kernels.kvector import kvector_build
+
+    rng = np.random.default_rng(5)
+    for v in (rng.uniform(-50, 2100, 500), np.round(rng.uniform(0, 10, 300)), np.array([1.0, 1.0, 1.0]), np.array([4.2])):
+        kv = KVector(v)
+        order, s, k, a1, b1 = kvector_build(v)
+        assert np.array_equal(order, kv.order) and np.array_equal(s, kv.sorted_values) and np.array_equal(k, kv.k)
+        assert (a1, b1) == (kv.a1, kv.b1)

@@ -310,3 +310,138 @@ def test_outlier_on_a_predicted_spot_is_rejected(catalog):
     kept = attitudes_per_instant(xy, idx, pred, cam, catalog, 0.1, outlier_k_sigma=1e9)
     err_kept = attitude_errors_body(kept.q_body_to_icrs[0], fr.q_body_to_icrs[0])
     assert kept.n_outliers == 0 and err_kept @ np.linalg.inv(kept.covariance_rad2[0]) @ err_kept > 16.3
+
+
+# ------------------------------------------------------------------ compiled path against references
+def _reference_prediction(cam, cat, q0, times, t_ref, w, a, margin):
+    """Prediction by the checked rotation functions, an explicit cone of dot products and ``Camera.project``."""
+    from startracker.rotations import quat_integrate, quat_to_matrix
+
+    q_body = quat_integrate(np.asarray(q0, float), np.asarray(w, float), np.asarray(times) - t_ref, np.asarray(a, float))
+    rows = []
+    for i, q in enumerate(np.atleast_2d(q_body)):
+        r_c2i = quat_to_matrix(quat_multiply(q, np.array(cam.q_cam_to_body)))
+        v_cam = cat.vectors @ r_c2i
+        xy, _, front = cam.project(v_cam, return_in_front=True)
+        # Stars far outside the field can fold onto the detector through the distortion polynomial: only those
+        # within the field's half-diagonal (plus the margin) are real spots.
+        front &= v_cam[:, 2] >= np.cos(cam.half_diagonal_fov_rad + margin / cam.focal_length_px + 0.01)
+        wdt, hgt = cam.resolution
+        keep = front & (xy[:, 0] >= -0.5 - margin) & (xy[:, 0] <= wdt - 0.5 + margin) & (xy[:, 1] >= -0.5 - margin) & (xy[:, 1] <= hgt - 0.5 + margin)
+        for j in np.flatnonzero(keep):
+            rows.append((i, j, xy[j, 0], xy[j, 1]))
+    return np.atleast_2d(q_body), rows
+
+
+@pytest.mark.parametrize("kind", ["plain", "distorted", "channel"])
+def test_compiled_prediction_equals_a_reference_over_the_whole_catalog(catalog, kind):
+    from startracker.color import ChannelCamera
+
+    base = camera_preset("paper000", q_cam_to_body=quat_from_rotvec([0.1, 0.4, -0.2]))
+    if kind == "distorted":
+        base = Camera(resolution=(1024, 768), pixel_size_um=5.5, focal_length_mm=20.0, distortion_k1_per_mm2=-2e-4,
+                      q_cam_to_body=base.q_cam_to_body)
+    cam = ChannelCamera.from_camera(base, np.radians(1.7)) if kind == "channel" else base
+    rng = np.random.default_rng(21)
+    for _ in range(5):
+        q = quat_random(rng)
+        times = np.sort(rng.uniform(0, 0.1, 7))
+        w, a = rng.normal(0, 0.2, 3), rng.normal(0, 0.5, 3)
+        pred = predict_star_positions(cam, catalog, q, times, 0.03, w, a, margin_px=5.0)
+        q_ref, rows = _reference_prediction(cam, catalog, q, times, 0.03, w, a, 5.0)
+        np.testing.assert_allclose(pred.q_body_to_icrs, q_ref, atol=1e-15)
+        got = sorted(zip(pred.instant.tolist(), pred.star_index.tolist()))
+        assert got == sorted((i, j) for i, j, _, _ in rows)
+        ref_xy = {(i, j): (x, y) for i, j, x, y in rows}
+        np.testing.assert_allclose(pred.xy, [ref_xy[k] for k in zip(pred.instant.tolist(), pred.star_index.tolist())],
+                                   atol=1e-7)
+        assert np.all(np.diff(pred.instant) >= 0)
+        wdt, hgt = cam.resolution
+        on = (pred.xy[:, 0] >= -0.5) & (pred.xy[:, 0] <= wdt - 0.5) & (pred.xy[:, 1] >= -0.5) & (pred.xy[:, 1] <= hgt - 0.5)
+        assert np.array_equal(pred.on_detector, on)
+
+
+class _MirroredCamera(Camera):
+    """A camera with a projection model of its own (columns mirrored): must go through its methods."""
+
+    def project(self, v_cam, return_in_front=False, *, validate=True):
+        xy, in_frame, front = super().project(v_cam, return_in_front=True, validate=validate)
+        xy = np.array(xy, copy=True)
+        xy[..., 0] = self.resolution[0] - 1 - xy[..., 0]
+        return (xy, in_frame, front) if return_in_front else (xy, in_frame)
+
+    def unproject(self, xy):
+        xy = np.array(xy, dtype=float, copy=True)
+        xy[..., 0] = self.resolution[0] - 1 - xy[..., 0]
+        return super().unproject(xy)
+
+
+def test_a_camera_with_its_own_projection_is_used_through_its_methods(catalog):
+    cam = _MirroredCamera(resolution=(2048, 2048), pixel_size_um=5.5, focal_length_mm=31.94)
+    plain = camera_preset("paper000")
+    rng = np.random.default_rng(22)
+    q = quat_random(rng)
+    times = np.linspace(0, 0.1, 4)
+    p_m = predict_star_positions(cam, catalog, q, times, 0.0, [0.0, 0.05, 0.0])
+    p_p = predict_star_positions(plain, catalog, q, times, 0.0, [0.0, 0.05, 0.0])
+    assert p_m.star_index.tolist() == p_p.star_index.tolist()
+    np.testing.assert_allclose(p_m.xy[:, 0], 2047 - p_p.xy[:, 0], atol=1e-9)
+    res = attitudes_per_instant(p_m.xy, np.arange(len(p_m)), p_m, cam, catalog, 0.1)
+    err = quat_to_rotvec(quat_multiply(quat_conjugate(res.q_body_to_icrs), p_m.q_body_to_icrs))
+    assert res.ok.all() and np.abs(err).max() < 1e-9
+
+
+def _reference_attitudes(obs, idx, pred, cam, cat, sigma_px, k_sigma):
+    """Unique assignment and per-instant outlier loop in plain numpy, Wahba by scipy's align_vectors."""
+    from scipy.spatial.transform import Rotation
+
+    assign = np.full(len(obs), -1)
+    for p in np.unique(idx[idx >= 0]):
+        q = np.flatnonzero(idx == p)
+        d2 = np.sum((obs[q] - pred.xy[p]) ** 2, axis=1)
+        assign[q[np.argmin(d2)]] = p  # first minimum: the lowest observed index on ties
+    v_body = cam.unproject(obs) @ cam.r_cam_to_body.T
+    thr = k_sigma * sigma_px / cam.focal_length_px
+    out = []
+    for i in range(len(pred.times_s)):
+        q_i = [q for q in range(len(obs)) if assign[q] >= 0 and pred.instant[assign[q]] == i]
+        while True:
+            b = v_body[q_i]
+            r = cat.vectors[pred.star_index[assign[q_i]]]
+            rot, _ = Rotation.align_vectors(r, b)
+            ab = rot.apply(b)
+            ang = np.arctan2(np.linalg.norm(np.cross(ab, r), axis=1), np.sum(ab * r, axis=1))
+            if len(q_i) > 2 and ang.max() > thr:
+                q_i.pop(int(np.argmax(ang)))
+                continue
+            break
+        out.append((rot, q_i))
+    return out
+
+
+def test_grouping_and_wahba_equal_an_independent_reference(catalog):
+    cam = camera_preset("paper000", q_cam_to_body=quat_from_rotvec([0.3, -0.2, 0.1]))
+    rng = np.random.default_rng(23)
+    n_out = n_doubles = 0
+    for _ in range(4):
+        q = quat_random(rng)
+        w = slew_axis(rng) * np.radians(6.0)
+        times = np.arange(7) * 0.1 / 7
+        pred = predict_star_positions(cam, catalog, q, times, 0.0, w)
+        obs = pred.xy + rng.normal(0, 0.3, pred.xy.shape)
+        extra = pred.xy[rng.choice(len(pred), 25)] + rng.normal(0, 1.0, (25, 2))  # doubles on predicted spots
+        obs = np.concatenate([obs, extra])
+        obs[rng.choice(len(pred), 5)] += rng.uniform(2.0, 3.0, (5, 2))  # outliers within the radius
+        idx = match_stars(pred.xy, obs, 4.5)
+        res = attitudes_per_instant(obs, idx, pred, cam, catalog, 0.3)
+        ref = _reference_attitudes(obs, idx, pred, cam, catalog, 0.3, 5.0)
+        for i, (rot, q_i) in enumerate(ref):
+            assert res.n_stars[i] == len(q_i)
+            assert sorted(np.flatnonzero(res.assignment >= 0)[pred.instant[res.assignment[res.assignment >= 0]] == i].tolist()) == sorted(q_i)
+            q_ref = rot.as_quat()[[3, 0, 1, 2]]
+            assert np.linalg.norm(quat_to_rotvec(quat_multiply(quat_conjugate(res.q_body_to_icrs[i]), q_ref))) < 1e-11
+        # every predicted spot matched keeps exactly one detection unless that one was rejected as an outlier
+        assert res.n_outliers == len(np.unique(idx[idx >= 0])) - np.sum(res.assignment >= 0)
+        n_out += res.n_outliers
+        n_doubles += int(np.sum(idx >= 0) - len(np.unique(idx[idx >= 0])))
+    assert n_out > 0 and n_doubles > 0  # both rules were exercised

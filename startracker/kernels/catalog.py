@@ -1,0 +1,57 @@
+"""Catalog kernel: the cone search over stars sorted by their ICRS z component (declination bands), compiled, no checks.
+
+The checked API is :meth:`startracker.catalog.StarCatalog.cone_search`. A star within the angle ρ of a direction
+at polar angle θ (``cos θ = d_z``) has ``z ∈ [cos(min(π, θ + ρ)), cos(max(0, θ − ρ))]``: two binary searches in
+the sorted z values bound the band, and the chord test ``|v − d| <= 2 sin(ρ/2)`` decides inside it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["cone_search_sorted_z"]
+
+
+@njit(cache=True)
+def cone_search_sorted_z(vectors_by_z, z_sorted, order, direction, radius_rad, chord_max):
+    """Indices of the stars within ``radius_rad`` of ``direction``.
+
+    Parameters
+    ----------
+    vectors_by_z : ndarray, shape (S, 3)
+        Unit ICRS vectors of the catalog, sorted by z (``vectors[order]``).
+    z_sorted : ndarray, shape (S,)
+        ``vectors_by_z[:, 2]``, ascending.
+    order : ndarray of int64, shape (S,)
+        Catalog row of each sorted star.
+    direction : ndarray, shape (3,)
+        Unit direction, ICRS.
+    radius_rad : float
+        Cone half-angle, rad, in (0, π].
+    chord_max : float
+        Chord length accepted, ``2 sin(radius_rad / 2)`` (widened by the caller's tolerance).
+
+    Returns
+    -------
+    ndarray of int64, shape (P,)
+        Catalog rows, ascending.
+    """
+    theta = math.acos(min(1.0, max(-1.0, direction[2])))
+    z_lo = math.cos(min(math.pi, theta + radius_rad)) - 1e-9
+    z_hi = math.cos(max(0.0, theta - radius_rad)) + 1e-9
+    lo = np.searchsorted(z_sorted, z_lo, side="left")
+    hi = np.searchsorted(z_sorted, z_hi, side="right")
+    c2 = chord_max * chord_max
+    out = np.empty(hi - lo, dtype=np.int64)
+    n = 0
+    for j in range(lo, hi):
+        dx = vectors_by_z[j, 0] - direction[0]
+        dy = vectors_by_z[j, 1] - direction[1]
+        dz = vectors_by_z[j, 2] - direction[2]
+        if dx * dx + dy * dy + dz * dz <= c2:
+            out[n] = order[j]
+            n += 1
+    return np.sort(out[:n])

@@ -44,9 +44,9 @@ def _ndtr(x):
 
 
 @njit(cache=True)
-def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, factors, intensified):
+def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, peak_f, photon_f, bg_f, lock_f,
+            min_log_ratio, intensified):
     """One spot of :func:`spot_theory`: the 13 values of ``THEORY_COLUMNS``."""
-    peak_f, photon_f, bg_f, lock_f, min_log_ratio = factors[0], factors[1], factors[2], factors[3], factors[4]
     se2 = sigma * sigma + 1.0 / 12.0
     se = math.sqrt(se2)
     if length > 1e-6:
@@ -146,8 +146,10 @@ def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_
     """
     n = s_units.shape[0]
     out = np.empty((n, 13))
+    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
     for i in range(n):
-        v = _theory(s_units[i], gain, f2, sigma, sigma_o, c_splash, length[i], var_b[i], thr_e[i], factors, intensified)
+        v = _theory(s_units[i], gain, f2, sigma, sigma_o, c_splash, length[i], var_b[i], thr_e[i], pf, hf, bf, lf, ml,
+                    intensified)
         for j in range(13):
             out[i, j] = v[j]
     return out
@@ -313,22 +315,14 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
     kind_star, kind_debris, kind_cosmic, kind_hot, kind_noise = kinds[0], kinds[1], kinds[2], kinds[3], kinds[4]
     x_lo, x_hi, y_lo, y_hi = -0.5, n_cols - 0.5, -0.5, n_rows - 0.5
 
-    # detected spots (upper bound: every candidate)
-    t_xy = np.empty((n_cand, 2))
-    o_xy = np.empty((n_cand, 2))
-    inten = np.empty(n_cand)
-    peak = np.empty(n_cand)
-    area = np.empty(n_cand)
-    var_bd = np.empty(n_cand)
-    reach = np.empty(n_cand)
-    star = np.empty(n_cand, dtype=np.int64)
-    expo = np.empty(n_cand, dtype=np.int64)
-    kind = np.empty(n_cand, dtype=np.int64)
-    nk = 0
+    # candidates on the detector with a signal: geometry first (stars, debris, cosmic rays), then one loop of theory
+    c_id = np.empty(n_cand, dtype=np.int64)
+    c_g = np.empty((n_cand, 6))  # x, y, dx, dy, length, signal
+    c_lab = np.empty((n_cand, 3), dtype=np.int64)  # kind, star, exposure
+    n_in = 0
     inv_s1 = 1.0 / (s - 1)
-    for c in range(n_cand):
-        if c < n * m:
-            e, j = c // m, c % m
+    for e in range(n):
+        for j in range(m):
             if not visible[e, j] or not star_pe[j] > 0.0:
                 continue
             sx = 0.5 * (xy_path[e, 0, j, 0] + xy_path[e, s - 1, j, 0])
@@ -341,13 +335,15 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
                 ddx = xy_path[e, t, j, 0] - xy_path[e, t - 1, j, 0]
                 ddy = xy_path[e, t, j, 1] - xy_path[e, t - 1, j, 1]
                 ln += math.sqrt(ddx * ddx + ddy * ddy)
-            x, y = sx * inv_s1, sy * inv_s1
-            dx = xy_path[e, s - 1, j, 0] - xy_path[e, 0, j, 0]
-            dy = xy_path[e, s - 1, j, 1] - xy_path[e, 0, j, 1]
-            su, g_, f2_, sg, so, cs, intens = star_pe[j], gain, f2, sigma, sigma_o, c_splash, intensified
-            kd, st, ex = kind_star, j, e
-        elif c < n * m + n * nd:
-            e, j = (c - n * m) // nd, (c - n * m) % nd
+            c_id[n_in] = e * m + j
+            c_g[n_in, 0], c_g[n_in, 1] = sx * inv_s1, sy * inv_s1
+            c_g[n_in, 2] = xy_path[e, s - 1, j, 0] - xy_path[e, 0, j, 0]
+            c_g[n_in, 3] = xy_path[e, s - 1, j, 1] - xy_path[e, 0, j, 1]
+            c_g[n_in, 4], c_g[n_in, 5] = ln, star_pe[j]
+            c_lab[n_in, 0], c_lab[n_in, 1], c_lab[n_in, 2] = kind_star, j, e
+            n_in += 1
+    for e in range(n):
+        for j in range(nd):
             p0x = debris_xy0[j, 0] + debris_velocity_px_s[j, 0] * t_start_rel_s[e]
             p0y = debris_xy0[j, 1] + debris_velocity_px_s[j, 1] * t_start_rel_s[e]
             p1x = debris_xy0[j, 0] + debris_velocity_px_s[j, 0] * t_end_rel_s[e]
@@ -356,23 +352,55 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
             if not (x >= x_lo and x <= x_hi and y >= y_lo and y <= y_hi) or not debris_pe[j] > 0.0:
                 continue
             dx, dy = p1x - p0x, p1y - p0y
-            ln = math.sqrt(dx * dx + dy * dy)
-            su, g_, f2_, sg, so, cs, intens = debris_pe[j], gain, f2, sigma, sigma_o, c_splash, intensified
-            kd, st, ex = kind_debris, -1, e
-        else:
-            j = c - n * m - n * nd
-            x = 0.5 * (cosmic_start_xy[j, 0] + cosmic_end_xy[j, 0])
-            y = 0.5 * (cosmic_start_xy[j, 1] + cosmic_end_xy[j, 1])
-            if not (x >= x_lo and x <= x_hi and y >= y_lo and y <= y_hi):
-                continue
-            dx = cosmic_end_xy[j, 0] - cosmic_start_xy[j, 0]
-            dy = cosmic_end_xy[j, 1] - cosmic_start_xy[j, 1]
-            ln = math.sqrt(dx * dx + dy * dy)
-            su, g_, f2_, sg, so, cs, intens = cosmic_e[j], 1.0, 1.0, cosmic_sigma, cosmic_sigma, 1.0, False
-            kd, st, ex = kind_cosmic, -1, -1
-        var_b = (_var_e(background, x, y) / g_dn ** 2 + 1.0 / 12.0) * g_dn ** 2
+            c_id[n_in] = n * m + e * nd + j
+            c_g[n_in, 0], c_g[n_in, 1], c_g[n_in, 2], c_g[n_in, 3] = x, y, dx, dy
+            c_g[n_in, 4], c_g[n_in, 5] = math.sqrt(dx * dx + dy * dy), debris_pe[j]
+            c_lab[n_in, 0], c_lab[n_in, 1], c_lab[n_in, 2] = kind_debris, -1, e
+            n_in += 1
+    n_optical = n_in
+    for j in range(nc):
+        x = 0.5 * (cosmic_start_xy[j, 0] + cosmic_end_xy[j, 0])
+        y = 0.5 * (cosmic_start_xy[j, 1] + cosmic_end_xy[j, 1])
+        if not (x >= x_lo and x <= x_hi and y >= y_lo and y <= y_hi):
+            continue
+        dx = cosmic_end_xy[j, 0] - cosmic_start_xy[j, 0]
+        dy = cosmic_end_xy[j, 1] - cosmic_start_xy[j, 1]
+        c_id[n_in] = n * m + n * nd + j
+        c_g[n_in, 0], c_g[n_in, 1], c_g[n_in, 2], c_g[n_in, 3] = x, y, dx, dy
+        c_g[n_in, 4], c_g[n_in, 5] = math.sqrt(dx * dx + dy * dy), cosmic_e[j]
+        c_lab[n_in, 0], c_lab[n_in, 1], c_lab[n_in, 2] = kind_cosmic, -1, -1
+        n_in += 1
+
+    # detected spots
+    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
+    bg_opt0, bg_dx, bg_dy, bg_cx, bg_cy = background[0], background[1], background[2], background[3], background[4]
+    bg_dark, bg_gain, bg_enf2c, bg_read, bg_prnu = background[5], background[6], background[7], background[8], background[9]
+    se2_optical = sigma * sigma + 1.0 / 12.0
+    se2_cosmic = cosmic_sigma * cosmic_sigma + 1.0 / 12.0
+    g_dn2 = g_dn * g_dn
+    t_xy = np.empty((n_in, 2))
+    o_xy = np.empty((n_in, 2))
+    inten = np.empty(n_in)
+    peak = np.empty(n_in)
+    area = np.empty(n_in)
+    var_bd = np.empty(n_in)
+    reach = np.empty(n_in)
+    star = np.empty(n_in, dtype=np.int64)
+    expo = np.empty(n_in, dtype=np.int64)
+    kind = np.empty(n_in, dtype=np.int64)
+    nk = 0
+    for i in range(n_in):
+        x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
+        qe = bg_gain * max(bg_opt0 + bg_dx * (x - bg_cx) + bg_dy * (y - bg_cy), 0.0)
+        var_b = ((bg_enf2c * qe + bg_dark + bg_read + (bg_prnu * qe) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
         thr_e = k_sigma * math.sqrt(var_b)
-        th = _theory(su, g_, f2_, sg, so, cs, ln, var_b, thr_e, factors, intens)
+        if i < n_optical:
+            th = _theory(su, gain, f2, sigma, sigma_o, c_splash, ln, var_b, thr_e, pf, hf, bf, lf, ml, intensified)
+            se2 = se2_optical
+        else:
+            th = _theory(su, 1.0, 1.0, cosmic_sigma, cosmic_sigma, 1.0, ln, var_b, thr_e, pf, hf, bf, lf, ml, False)
+            se2 = se2_cosmic
+        c = c_id[i]
         if not u_detect[c] < th[0]:
             continue
         if ln > 1e-9:
@@ -389,9 +417,8 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
         area[nk] = th[11]
         var_bd[nk] = var_b
         # expected threshold radius (without the detection calibration factor) plus half the streak
-        se2 = sg * sg + 1.0 / 12.0
-        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / (k_sigma * math.sqrt(var_b)), 1.0))) + 0.5 * ln
-        star[nk], expo[nk], kind[nk] = st, ex, kd
+        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / thr_e, 1.0))) + 0.5 * ln
+        star[nk], expo[nk], kind[nk] = c_lab[i, 1], c_lab[i, 2], c_lab[i, 0]
         nk += 1
 
     # spots whose threshold regions touch are one component in the pixel path: merge them

@@ -294,23 +294,29 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
     """
     n_p = r_cam_to_icrs.shape[0]
     k_n = index.shape[0]
+    vx = np.empty(k_n)
+    vy = np.empty(k_n)
+    vz = np.empty(k_n)
+    for k in range(k_n):
+        vx[k], vy[k], vz[k] = vectors[index[k], 0], vectors[index[k], 1], vectors[index[k], 2]
     xy = np.empty((n_p, k_n, 2))
     in_front = np.empty((n_p, k_n), dtype=np.bool_)
+    f_px = focal_length_mm / pixel_size_mm
+    k1_px = k1_per_mm2 * focal_length_mm * focal_length_mm  # δ = k1 f² (X² + Y²) / Z²
     for i in range(n_p):
+        r00, r10, r20 = r_cam_to_icrs[i, 0, 0], r_cam_to_icrs[i, 1, 0], r_cam_to_icrs[i, 2, 0]
+        r01, r11, r21 = r_cam_to_icrs[i, 0, 1], r_cam_to_icrs[i, 1, 1], r_cam_to_icrs[i, 2, 1]
+        r02, r12, r22 = r_cam_to_icrs[i, 0, 2], r_cam_to_icrs[i, 1, 2], r_cam_to_icrs[i, 2, 2]
         for k in range(k_n):
-            v0, v1, v2 = vectors[index[k], 0], vectors[index[k], 1], vectors[index[k], 2]
-            x = r_cam_to_icrs[i, 0, 0] * v0 + r_cam_to_icrs[i, 1, 0] * v1 + r_cam_to_icrs[i, 2, 0] * v2
-            y = r_cam_to_icrs[i, 0, 1] * v0 + r_cam_to_icrs[i, 1, 1] * v1 + r_cam_to_icrs[i, 2, 1] * v2
-            z = r_cam_to_icrs[i, 0, 2] * v0 + r_cam_to_icrs[i, 1, 2] * v1 + r_cam_to_icrs[i, 2, 2] * v2
-            front = z > 1e-12 * math.sqrt(x * x + y * y + z * z)
+            x = r00 * vx[k] + r10 * vy[k] + r20 * vz[k]
+            y = r01 * vx[k] + r11 * vy[k] + r21 * vz[k]
+            z = r02 * vx[k] + r12 * vy[k] + r22 * vz[k]
+            front = (z > 0.0) & (z * z > 1e-24 * (x * x + y * y + z * z))  # Z > 1e-12 |v|
             in_front[i, k] = front
-            zs = z if front else 1.0
-            xm = focal_length_mm * x / zs
-            ym = focal_length_mm * y / zs
-            if k1_per_mm2 != 0.0:
-                g = 1.0 + k1_per_mm2 * (xm * xm + ym * ym)
-                xm *= g
-                ym *= g
-            xy[i, k, 0] = xm / pixel_size_mm + cx_px
-            xy[i, k, 1] = ym / pixel_size_mm + cy_px
+            inv_z = 1.0 / (z if front else 1.0)
+            u = x * inv_z
+            w = y * inv_z
+            g = f_px * (1.0 + k1_px * (u * u + w * w))
+            xy[i, k, 0] = u * g + cx_px
+            xy[i, k, 1] = w * g + cy_px
     return select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px)

@@ -156,32 +156,70 @@ def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_
 
 
 @njit(cache=True)
+def _columns(x, width):
+    """Counting sort of the points into columns at least ``width`` wide (at most about one per point): the
+    column of each point (K,), the points by column then index (K,), and where each column starts (n_col + 2,),
+    so that ``order[start[c]:start[c + 2]]`` are the points of columns c and c + 1."""
+    n = x.shape[0]
+    x0 = x[0]
+    x1 = x[0]
+    for i in range(n):
+        x0 = min(x0, x[i])
+        x1 = max(x1, x[i])
+    w = max(width, (x1 - x0) / n)
+    if not w > 0.0:
+        w = 1.0
+    col = np.empty(n, dtype=np.int64)
+    n_col = 0
+    for i in range(n):
+        col[i] = int((x[i] - x0) / w)
+        n_col = max(n_col, col[i] + 1)
+    start = np.zeros(n_col + 2, dtype=np.int64)
+    for i in range(n):
+        start[col[i] + 1] += 1
+    for c in range(n_col + 1):
+        start[c + 1] += start[c]
+    fill = np.empty(n_col + 2, dtype=np.int64)
+    for c in range(n_col + 2):
+        fill[c] = start[c]
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        order[fill[col[i]]] = i
+        fill[col[i]] += 1
+    return col, order, start
+
+
+@njit(cache=True)
 def candidate_pairs(xy, r):
     """Pairs ``(i, j)``, ``i < j``, of points closer than ``r`` along both x and y (a superset of the pairs
-    within ``r``), by a sort and sweep over x.
+    within ``r``): points sorted into columns at least ``r`` wide, each compared with those after it in its
+    column and in the next.
 
     Parameters
     ----------
     xy : ndarray, shape (K, 2)
     r : float
-        Distance, same units as ``xy``.
+        Distance, same units as ``xy`` (>= 0).
 
     Returns
     -------
     ndarray of int64, shape (Q, 2)
     """
     n = xy.shape[0]
-    order = np.argsort(xy[:, 0], kind="mergesort")
     cap = 16
     out = np.empty((cap, 2), dtype=np.int64)
+    if n < 2:
+        return np.empty((0, 2), dtype=np.int64)
+    x = np.empty(n)
+    for i in range(n):
+        x[i] = xy[i, 0]
+    col, order, start = _columns(x, r)
     q = 0
     for a in range(n):
         i = order[a]
-        for b in range(a + 1, n):
+        for b in range(a + 1, start[col[i] + 2]):
             j = order[b]
-            if xy[j, 0] - xy[i, 0] > r:
-                break
-            if abs(xy[j, 1] - xy[i, 1]) <= r:
+            if abs(xy[j, 0] - xy[i, 0]) <= r and abs(xy[j, 1] - xy[i, 1]) <= r:
                 if q == cap:
                     cap *= 2
                     grown = np.empty((cap, 2), dtype=np.int64)
@@ -190,7 +228,11 @@ def candidate_pairs(xy, r):
                 out[q, 0] = min(i, j)
                 out[q, 1] = max(i, j)
                 q += 1
-    return out[:q].copy()
+    res = np.empty((q, 2), dtype=np.int64)
+    for i in range(q):
+        res[i, 0] = out[i, 0]
+        res[i, 1] = out[i, 1]
+    return res
 
 
 @njit(cache=True)
@@ -206,20 +248,350 @@ def _find(parent, i):
 
 
 @njit(cache=True)
-def _optical_pe(bg, x, y):
-    return max(bg[0] + bg[1] * (x - bg[3]) + bg[2] * (y - bg[4]), 0.0)
+def _candidates(xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s, t_end_rel_s,
+                cosmic_start_xy, cosmic_end_xy, cosmic_e, n_cols, n_rows):
+    """The candidate spots on the detector with a signal: draw row (K,), geometry (K, 6) = x, y, dx, dy, length,
+    signal; source (K, 2) = star (-1), exposure (-1); the number of optical ones (stars, then debris), the number
+    of those that are stars."""
+    n, s, m = xy_path.shape[0], xy_path.shape[1], xy_path.shape[2]
+    nd = debris_xy0.shape[0]
+    nc = cosmic_e.shape[0]
+    n_cand = n * m + n * nd + nc
+    x_hi, y_hi = n_cols - 0.5, n_rows - 0.5
+    c_id = np.empty(n_cand, dtype=np.int64)
+    c_g = np.empty((n_cand, 6))
+    c_src = np.empty((n_cand, 2), dtype=np.int64)
+    k = 0
+    inv_s1 = 1.0 / (s - 1)
+    for e in range(n):
+        for j in range(m):
+            if not visible[e, j] or not star_pe[j] > 0.0:
+                continue
+            # trapezoid time-average of the path, polyline length
+            sx = 0.5 * (xy_path[e, 0, j, 0] + xy_path[e, s - 1, j, 0])
+            sy = 0.5 * (xy_path[e, 0, j, 1] + xy_path[e, s - 1, j, 1])
+            ln = 0.0
+            for t in range(1, s):
+                if t < s - 1:
+                    sx += xy_path[e, t, j, 0]
+                    sy += xy_path[e, t, j, 1]
+                ddx = xy_path[e, t, j, 0] - xy_path[e, t - 1, j, 0]
+                ddy = xy_path[e, t, j, 1] - xy_path[e, t - 1, j, 1]
+                ln += math.sqrt(ddx * ddx + ddy * ddy)
+            c_id[k] = e * m + j
+            c_g[k, 0] = sx * inv_s1
+            c_g[k, 1] = sy * inv_s1
+            c_g[k, 2] = xy_path[e, s - 1, j, 0] - xy_path[e, 0, j, 0]
+            c_g[k, 3] = xy_path[e, s - 1, j, 1] - xy_path[e, 0, j, 1]
+            c_g[k, 4] = ln
+            c_g[k, 5] = star_pe[j]
+            c_src[k, 0] = j
+            c_src[k, 1] = e
+            k += 1
+    n_star = k
+    for e in range(n):
+        for j in range(nd):
+            p0x = debris_xy0[j, 0] + debris_velocity_px_s[j, 0] * t_start_rel_s[e]
+            p0y = debris_xy0[j, 1] + debris_velocity_px_s[j, 1] * t_start_rel_s[e]
+            p1x = debris_xy0[j, 0] + debris_velocity_px_s[j, 0] * t_end_rel_s[e]
+            p1y = debris_xy0[j, 1] + debris_velocity_px_s[j, 1] * t_end_rel_s[e]
+            x = 0.5 * (p0x + p1x)
+            y = 0.5 * (p0y + p1y)
+            if x < -0.5 or x > x_hi or y < -0.5 or y > y_hi or not debris_pe[j] > 0.0:
+                continue
+            c_id[k] = n * m + e * nd + j
+            c_g[k, 0] = x
+            c_g[k, 1] = y
+            c_g[k, 2] = p1x - p0x
+            c_g[k, 3] = p1y - p0y
+            c_g[k, 4] = math.sqrt(c_g[k, 2] ** 2 + c_g[k, 3] ** 2)
+            c_g[k, 5] = debris_pe[j]
+            c_src[k, 0] = -1
+            c_src[k, 1] = e
+            k += 1
+    n_optical = k
+    for j in range(nc):
+        x = 0.5 * (cosmic_start_xy[j, 0] + cosmic_end_xy[j, 0])
+        y = 0.5 * (cosmic_start_xy[j, 1] + cosmic_end_xy[j, 1])
+        if x < -0.5 or x > x_hi or y < -0.5 or y > y_hi:
+            continue
+        c_id[k] = n * m + n * nd + j
+        c_g[k, 0] = x
+        c_g[k, 1] = y
+        c_g[k, 2] = cosmic_end_xy[j, 0] - cosmic_start_xy[j, 0]
+        c_g[k, 3] = cosmic_end_xy[j, 1] - cosmic_start_xy[j, 1]
+        c_g[k, 4] = math.sqrt(c_g[k, 2] ** 2 + c_g[k, 3] ** 2)
+        c_g[k, 5] = cosmic_e[j]
+        c_src[k, 0] = -1
+        c_src[k, 1] = -1
+        k += 1
+    return c_id[:k], c_g[:k], c_src[:k], n_optical, n_star
 
 
 @njit(cache=True)
-def _var_e(bg, x, y):
-    """Background pixel variance at (x, y), e⁻² (shot, dark, read, PRNU)."""
-    q = bg[6] * _optical_pe(bg, x, y)
-    return bg[7] * q + bg[5] + bg[8] + (bg[9] * q) ** 2
+def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma):
+    """Theory, detection and measurement of the candidates: the detected rows (D,), and per detection (D, 8) =
+    truth x, y, measured x, y, charge (e⁻), expected peak (e⁻), area (px), background variance (e⁻²), and the
+    reach (D,) (expected threshold radius without the peak factor, plus half the streak)."""
+    gain, f2, sigma, sigma_o, c_splash = sensor[0], sensor[1], sensor[2], sensor[3], sensor[4]
+    intensified = sensor[5] > 0.5
+    g_dn = sensor[10]
+    cosmic_sigma = sensor[11]
+    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
+    opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
+    dark, gain_bg, enf2c, read_var, prnu = background[5], background[6], background[7], background[8], background[9]
+    se2_optical = sigma * sigma + 1.0 / 12.0
+    se2_cosmic = cosmic_sigma * cosmic_sigma + 1.0 / 12.0
+    g_dn2 = g_dn * g_dn
+    n_in = c_id.shape[0]
+    rows = np.empty(n_in, dtype=np.int64)
+    out = np.empty((n_in, 8))
+    reach = np.empty(n_in)
+    nk = 0
+    for i in range(n_in):
+        x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
+        q = gain_bg * max(opt0 + gx * (x - cx) + gy * (y - cy), 0.0)
+        var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
+        thr_e = k_sigma * math.sqrt(var_b)
+        opt = i < n_optical
+        th = _theory(su, gain if opt else 1.0, f2 if opt else 1.0, sigma if opt else cosmic_sigma,
+                     sigma_o if opt else cosmic_sigma, c_splash if opt else 1.0, ln, var_b, thr_e, pf, hf, bf, lf, ml,
+                     intensified and opt)
+        c = c_id[i]
+        if not u_detect[c] < th[0]:
+            continue
+        if ln > 1e-9:
+            ax = dx / max(ln, 1e-12)
+            ay = dy / max(ln, 1e-12)
+        else:
+            ax = 1.0
+            ay = 0.0
+        e_al = z_spot[c, 0] * math.sqrt(th[7])
+        e_cr = z_spot[c, 1] * math.sqrt(th[8])
+        rows[nk] = i
+        out[nk, 0] = x
+        out[nk, 1] = y
+        out[nk, 2] = x + (ax * e_al + (-ay) * e_cr)
+        out[nk, 3] = y + (ay * e_al + ax * e_cr)
+        out[nk, 4] = max(th[9] + z_spot[c, 2] * math.sqrt(th[10]), 1e-3)
+        out[nk, 5] = th[12]
+        out[nk, 6] = th[11]
+        out[nk, 7] = var_b
+        se2 = se2_optical if opt else se2_cosmic
+        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / thr_e, 1.0))) + 0.5 * ln
+        nk += 1
+    return rows[:nk], out[:nk], reach[:nk]
 
 
 @njit(cache=True)
-def _mean_e(bg, x, y):
-    return bg[6] * _optical_pe(bg, x, y) + bg[5]
+def _touching(xy, reach):
+    """Union-find labels (K,) (the smallest member of each group) of the spots closer than the sum of their
+    reaches, and whether each touches another: each spot is compared with those after it in its column and the
+    next (columns as wide as the largest possible contact distance)."""
+    n = reach.shape[0]
+    parent = np.empty(n, dtype=np.int64)
+    touched = np.zeros(n, dtype=np.bool_)
+    x = np.empty(n)
+    reach_max = 0.0
+    for i in range(n):
+        parent[i] = i
+        x[i] = xy[i, 0]
+        reach_max = max(reach_max, reach[i])
+    if n < 2:
+        return parent, touched
+    col, order, start = _columns(x, 2.0 * reach_max)
+    for a in range(n):
+        i = order[a]
+        stop = start[col[i] + 2]  # the end of the next column
+        for b in range(a + 1, stop):
+            j = order[b]
+            ddx = xy[i, 0] - xy[j, 0]
+            ddy = xy[i, 1] - xy[j, 1]
+            if ddx * ddx + ddy * ddy < (reach[i] + reach[j]) ** 2:
+                touched[i] = True
+                touched[j] = True
+                ri = _find(parent, i)
+                rj = _find(parent, j)
+                if ri != rj:
+                    parent[max(ri, rj)] = min(ri, rj)
+    for i in range(n):
+        parent[i] = _find(parent, i)
+    return parent, touched
+
+
+@njit(cache=True)
+def order_decreasing(key):
+    """Stable order of decreasing ``key`` (K,) (float64, C-contiguous, no NaN): a least-significant-digit radix
+    sort on the bits.
+
+    Returns
+    -------
+    ndarray of int64, shape (K,)
+        ``numpy.argsort(-key, kind="stable")``.
+    """
+    n = key.shape[0]
+    bits = key.view(np.uint64)
+    sign = np.uint64(1) << np.uint64(63)
+    ukey = np.empty(n, dtype=np.uint64)
+    for i in range(n):
+        b = bits[i]
+        # increasing ukey = decreasing key: non-negative keys in reverse order first, then negative ones
+        ukey[i] = b if b & sign else ~b & ~sign
+    hist = np.zeros((8, 256), dtype=np.int64)
+    for i in range(n):
+        u = ukey[i]
+        for p in range(8):
+            hist[p, (u >> np.uint64(8 * p)) & np.uint64(255)] += 1
+    idx = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        idx[i] = i
+    tmp = np.empty(n, dtype=np.int64)
+    pos = np.empty(256, dtype=np.int64)
+    for p in range(8):
+        same = False
+        for d in range(256):
+            same = same or hist[p, d] == n
+        if same:  # one digit value for every key: nothing to reorder
+            continue
+        acc = 0
+        for d in range(256):
+            pos[d] = acc
+            acc += hist[p, d]
+        shift = np.uint64(8 * p)
+        for t in range(n):
+            i = idx[t]
+            d = (ukey[i] >> shift) & np.uint64(255)
+            tmp[pos[d]] = i
+            pos[d] += 1
+        idx, tmp = tmp, idx
+    return idx
+
+
+@njit(cache=True)
+def _assemble(det, reach, src, rows, n_star, n_optical, kinds, sensor, background, k_sigma, n_extra):
+    """Merge the touching detections and finish them (DN, area, saturation, SNR): the columns of the result,
+    with room for ``n_extra`` single-pixel detections after them; returns the arrays and the count."""
+    g_dn, bias_dn, saturation_dn = sensor[10], sensor[7], sensor[6]
+    parent, touched = _touching(det[:, :2], reach)
+    nk = reach.shape[0]
+    cap = nk + n_extra
+    f = np.empty((cap, 8))  # xy, truth xy, intensity, peak, snr, background variance / area scratch
+    lab = np.empty((cap, 3), dtype=np.int64)  # star, exposure, kind
+    area = np.empty(cap, dtype=np.int64)
+    sat = np.empty(cap, dtype=np.bool_)
+    area_f = np.empty(cap)
+    q = 0
+    slot = np.empty(nk, dtype=np.int64)
+    lead_w = np.empty(nk)
+    n_single = 0
+    for i in range(nk):
+        slot[i] = -1
+        n_single += 0 if touched[i] else 1
+    for pass_ in range(2):  # the spots that touch none in order, then the groups by their smallest member
+        for i in range(nk):
+            if touched[i] != (pass_ == 1):
+                continue
+            r = rows[i]
+            if pass_ == 0:
+                g = q
+                q += 1
+                f[g, 0] = det[i, 2]
+                f[g, 1] = det[i, 3]
+                f[g, 4] = det[i, 4]
+                f[g, 5] = det[i, 5]
+                area_f[g] = det[i, 6]
+            else:
+                root = parent[i]
+                if slot[root] < 0:
+                    slot[root] = q
+                    f[q, 0] = 0.0
+                    f[q, 1] = 0.0
+                    f[q, 4] = 0.0
+                    f[q, 5] = 0.0
+                    area_f[q] = 0.0
+                    lead_w[root] = -1.0
+                    q += 1
+                g = slot[root]
+                w = det[i, 4]
+                f[g, 0] += w * det[i, 2]
+                f[g, 1] += w * det[i, 3]
+                f[g, 4] += w
+                f[g, 5] += det[i, 5]
+                area_f[g] += det[i, 6]
+                if w < lead_w[root]:  # the brightest member labels the merged detection (the last of equals)
+                    continue
+                lead_w[root] = w
+            f[g, 2] = det[i, 0]
+            f[g, 3] = det[i, 1]
+            f[g, 7] = det[i, 7]
+            lab[g, 0] = src[r, 0]
+            lab[g, 1] = src[r, 1]
+            lab[g, 2] = kinds[0] if r < n_star else (kinds[1] if r < n_optical else kinds[2])
+    for g in range(n_single, q):
+        f[g, 0] /= f[g, 4]
+        f[g, 1] /= f[g, 4]
+    opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
+    for g in range(q):
+        inten = f[g, 4]
+        bg_e = background[6] * max(opt0 + gx * (f[g, 2] - cx) + gy * (f[g, 3] - cy), 0.0) + background[5]
+        sat[g] = (f[g, 5] + bg_e) / g_dn + bias_dn >= saturation_dn
+        sigma_dn = math.sqrt(f[g, 7]) / g_dn
+        a = max(np.rint(area_f[g]), 1.0)
+        area[g] = np.int64(a)
+        f[g, 5] = min(f[g, 5] / g_dn, saturation_dn - bias_dn)
+        f[g, 6] = inten / g_dn / (sigma_dn * math.sqrt(a))
+        f[g, 4] = inten / g_dn
+    return f, lab, area, sat, q
+
+
+@njit(cache=True)
+def _single_pixels(f, lab, area, sat, q, hot_index, hot_dark_e_per_s, z_hot, noise_index, noise_dn, background, sensor,
+                   k_sigma, n_cols, kinds):
+    """Append the hot pixels that cross the threshold and the background's crossings from row ``q``; returns the
+    new count."""
+    g_dn, bias_dn, saturation_dn, full_well_e, adc_max_dn = sensor[10], sensor[7], sensor[6], sensor[8], sensor[9]
+    opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
+    dark, gain_bg, enf2c, read_var, prnu = background[5], background[6], background[7], background[8], background[9]
+    integration_s = background[12]
+    for h in range(hot_index.shape[0]):
+        # background + the pixel's own dark charge, detected when the drawn DN crosses the threshold
+        hr = hot_index[h] // n_cols
+        hc = hot_index[h] - hr * n_cols
+        qe = gain_bg * max(opt0 + gx * (hc - cx) + gy * (hr - cy), 0.0)
+        hot_e = hot_dark_e_per_s[h] * integration_s
+        var0 = enf2c * qe + dark + read_var
+        mean_dn0 = (qe + dark) / g_dn + bias_dn
+        sd_dn0 = math.sqrt((var0 + (prnu * qe) ** 2) / g_dn ** 2 + 1.0 / 12.0)
+        e_h = qe + dark + hot_e + math.sqrt(var0 + hot_e) * z_hot[h]
+        dn = min(max(np.rint(min(e_h, full_well_e) / g_dn + bias_dn), 0.0), adc_max_dn)
+        if dn > mean_dn0 + k_sigma * sd_dn0:
+            _put_pixel(f, lab, area, sat, q, hc, hr, dn - mean_dn0, dn >= saturation_dn, sd_dn0, kinds[3])
+            q += 1
+    for i in range(noise_index.shape[0]):
+        fr = noise_index[i] // n_cols
+        fc = noise_index[i] - fr * n_cols
+        qe = gain_bg * max(opt0 + gx * (fc - cx) + gy * (fr - cy), 0.0)
+        mean_dn = (qe + dark) / g_dn + bias_dn
+        sd = math.sqrt((enf2c * qe + dark + read_var + (prnu * qe) ** 2) / g_dn ** 2 + 1.0 / 12.0)
+        _put_pixel(f, lab, area, sat, q, fc, fr, noise_dn[i] - mean_dn, noise_dn[i] >= saturation_dn, sd, kinds[4])
+        q += 1
+    return q
+
+
+@njit(cache=True)
+def _put_pixel(f, lab, area, sat, q, col, row, signal_dn, saturated, sigma_dn, kind):
+    f[q, 0] = col
+    f[q, 1] = row
+    f[q, 2] = col
+    f[q, 3] = row
+    f[q, 4] = signal_dn
+    f[q, 5] = signal_dn
+    f[q, 6] = signal_dn / max(sigma_dn, 1e-9)
+    lab[q, 0] = -1
+    lab[q, 1] = -1
+    lab[q, 2] = kind
+    area[q] = 1
+    sat[q] = saturated
 
 
 @njit(cache=True)
@@ -304,243 +676,46 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
     background_dn, noise_dn : float
         Background level and σ at the principal point, DN.
     """
-    n, s, m = xy_path.shape[0], xy_path.shape[1], xy_path.shape[2]
-    nd = debris_xy0.shape[0]
-    nc = cosmic_e.shape[0]
-    n_cand = n * m + n * nd + nc
-    gain, f2, sigma, sigma_o, c_splash = sensor[0], sensor[1], sensor[2], sensor[3], sensor[4]
-    intensified = sensor[5] > 0.5
-    saturation_dn, bias_dn, full_well_e, adc_max_dn, g_dn = sensor[6], sensor[7], sensor[8], sensor[9], sensor[10]
-    cosmic_sigma = sensor[11]
-    kind_star, kind_debris, kind_cosmic, kind_hot, kind_noise = kinds[0], kinds[1], kinds[2], kinds[3], kinds[4]
-    x_lo, x_hi, y_lo, y_hi = -0.5, n_cols - 0.5, -0.5, n_rows - 0.5
-
-    # candidates on the detector with a signal: geometry first (stars, debris, cosmic rays), then one loop of theory
-    c_id = np.empty(n_cand, dtype=np.int64)
-    c_g = np.empty((n_cand, 6))  # x, y, dx, dy, length, signal
-    c_lab = np.empty((n_cand, 3), dtype=np.int64)  # kind, star, exposure
-    n_in = 0
-    inv_s1 = 1.0 / (s - 1)
-    for e in range(n):
-        for j in range(m):
-            if not visible[e, j] or not star_pe[j] > 0.0:
-                continue
-            sx = 0.5 * (xy_path[e, 0, j, 0] + xy_path[e, s - 1, j, 0])
-            sy = 0.5 * (xy_path[e, 0, j, 1] + xy_path[e, s - 1, j, 1])
-            ln = 0.0
-            for t in range(1, s):
-                if t < s - 1:
-                    sx += xy_path[e, t, j, 0]
-                    sy += xy_path[e, t, j, 1]
-                ddx = xy_path[e, t, j, 0] - xy_path[e, t - 1, j, 0]
-                ddy = xy_path[e, t, j, 1] - xy_path[e, t - 1, j, 1]
-                ln += math.sqrt(ddx * ddx + ddy * ddy)
-            c_id[n_in] = e * m + j
-            c_g[n_in, 0], c_g[n_in, 1] = sx * inv_s1, sy * inv_s1
-            c_g[n_in, 2] = xy_path[e, s - 1, j, 0] - xy_path[e, 0, j, 0]
-            c_g[n_in, 3] = xy_path[e, s - 1, j, 1] - xy_path[e, 0, j, 1]
-            c_g[n_in, 4], c_g[n_in, 5] = ln, star_pe[j]
-            c_lab[n_in, 0], c_lab[n_in, 1], c_lab[n_in, 2] = kind_star, j, e
-            n_in += 1
-    for e in range(n):
-        for j in range(nd):
-            p0x = debris_xy0[j, 0] + debris_velocity_px_s[j, 0] * t_start_rel_s[e]
-            p0y = debris_xy0[j, 1] + debris_velocity_px_s[j, 1] * t_start_rel_s[e]
-            p1x = debris_xy0[j, 0] + debris_velocity_px_s[j, 0] * t_end_rel_s[e]
-            p1y = debris_xy0[j, 1] + debris_velocity_px_s[j, 1] * t_end_rel_s[e]
-            x, y = 0.5 * (p0x + p1x), 0.5 * (p0y + p1y)
-            if not (x >= x_lo and x <= x_hi and y >= y_lo and y <= y_hi) or not debris_pe[j] > 0.0:
-                continue
-            dx, dy = p1x - p0x, p1y - p0y
-            c_id[n_in] = n * m + e * nd + j
-            c_g[n_in, 0], c_g[n_in, 1], c_g[n_in, 2], c_g[n_in, 3] = x, y, dx, dy
-            c_g[n_in, 4], c_g[n_in, 5] = math.sqrt(dx * dx + dy * dy), debris_pe[j]
-            c_lab[n_in, 0], c_lab[n_in, 1], c_lab[n_in, 2] = kind_debris, -1, e
-            n_in += 1
-    n_optical = n_in
-    for j in range(nc):
-        x = 0.5 * (cosmic_start_xy[j, 0] + cosmic_end_xy[j, 0])
-        y = 0.5 * (cosmic_start_xy[j, 1] + cosmic_end_xy[j, 1])
-        if not (x >= x_lo and x <= x_hi and y >= y_lo and y <= y_hi):
-            continue
-        dx = cosmic_end_xy[j, 0] - cosmic_start_xy[j, 0]
-        dy = cosmic_end_xy[j, 1] - cosmic_start_xy[j, 1]
-        c_id[n_in] = n * m + n * nd + j
-        c_g[n_in, 0], c_g[n_in, 1], c_g[n_in, 2], c_g[n_in, 3] = x, y, dx, dy
-        c_g[n_in, 4], c_g[n_in, 5] = math.sqrt(dx * dx + dy * dy), cosmic_e[j]
-        c_lab[n_in, 0], c_lab[n_in, 1], c_lab[n_in, 2] = kind_cosmic, -1, -1
-        n_in += 1
-
-    # detected spots
-    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
-    bg_opt0, bg_dx, bg_dy, bg_cx, bg_cy = background[0], background[1], background[2], background[3], background[4]
-    bg_dark, bg_gain, bg_enf2c, bg_read, bg_prnu = background[5], background[6], background[7], background[8], background[9]
-    se2_optical = sigma * sigma + 1.0 / 12.0
-    se2_cosmic = cosmic_sigma * cosmic_sigma + 1.0 / 12.0
-    g_dn2 = g_dn * g_dn
-    t_xy = np.empty((n_in, 2))
-    o_xy = np.empty((n_in, 2))
-    inten = np.empty(n_in)
-    peak = np.empty(n_in)
-    area = np.empty(n_in)
-    var_bd = np.empty(n_in)
-    reach = np.empty(n_in)
-    star = np.empty(n_in, dtype=np.int64)
-    expo = np.empty(n_in, dtype=np.int64)
-    kind = np.empty(n_in, dtype=np.int64)
-    nk = 0
-    for i in range(n_in):
-        x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
-        qe = bg_gain * max(bg_opt0 + bg_dx * (x - bg_cx) + bg_dy * (y - bg_cy), 0.0)
-        var_b = ((bg_enf2c * qe + bg_dark + bg_read + (bg_prnu * qe) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
-        thr_e = k_sigma * math.sqrt(var_b)
-        if i < n_optical:
-            th = _theory(su, gain, f2, sigma, sigma_o, c_splash, ln, var_b, thr_e, pf, hf, bf, lf, ml, intensified)
-            se2 = se2_optical
-        else:
-            th = _theory(su, 1.0, 1.0, cosmic_sigma, cosmic_sigma, 1.0, ln, var_b, thr_e, pf, hf, bf, lf, ml, False)
-            se2 = se2_cosmic
-        c = c_id[i]
-        if not u_detect[c] < th[0]:
-            continue
-        if ln > 1e-9:
-            ax, ay = dx / max(ln, 1e-12), dy / max(ln, 1e-12)
-        else:
-            ax, ay = 1.0, 0.0
-        e_al = z_spot[c, 0] * math.sqrt(th[7])
-        e_cr = z_spot[c, 1] * math.sqrt(th[8])
-        t_xy[nk, 0], t_xy[nk, 1] = x, y
-        o_xy[nk, 0] = x + (ax * e_al + (-ay) * e_cr)
-        o_xy[nk, 1] = y + (ay * e_al + ax * e_cr)
-        inten[nk] = max(th[9] + z_spot[c, 2] * math.sqrt(th[10]), 1e-3)
-        peak[nk] = th[12]
-        area[nk] = th[11]
-        var_bd[nk] = var_b
-        # expected threshold radius (without the detection calibration factor) plus half the streak
-        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / thr_e, 1.0))) + 0.5 * ln
-        star[nk], expo[nk], kind[nk] = c_lab[i, 1], c_lab[i, 2], c_lab[i, 0]
-        nk += 1
-
-    # spots whose threshold regions touch are one component in the pixel path: merge them
-    parent = np.arange(nk)
-    merged = np.zeros(nk, dtype=np.bool_)
-    if nk > 1:
-        reach_max = reach[:nk].max()
-        order = np.argsort(t_xy[:nk, 0], kind="mergesort")
-        for a in range(nk):
-            i = order[a]
-            for b in range(a + 1, nk):
-                j = order[b]
-                if t_xy[j, 0] - t_xy[i, 0] > reach[i] + reach_max:
-                    break
-                ddx = t_xy[i, 0] - t_xy[j, 0]
-                ddy = t_xy[i, 1] - t_xy[j, 1]
-                if ddx * ddx + ddy * ddy < (reach[i] + reach[j]) ** 2:
-                    merged[i] = True
-                    merged[j] = True
-                    ri, rj = _find(parent, i), _find(parent, j)
-                    if ri != rj:
-                        parent[max(ri, rj)] = min(ri, rj)
-    # roots are the smallest member: the kept spots in order, then the merged groups by their smallest member
-    n_h = hot_index.shape[0]
-    n_f = noise_index.shape[0]
-    cap = nk + n_h + n_f
-    r_xy = np.empty((cap, 2))
-    r_tr = np.empty((cap, 2))
-    r_in = np.empty(cap)
-    r_area = np.empty(cap, dtype=np.int64)
-    r_sat = np.empty(cap, dtype=np.bool_)
-    r_peak = np.empty(cap)
-    r_snr = np.empty(cap)
-    r_star = np.empty(cap, dtype=np.int64)
-    r_expo = np.empty(cap, dtype=np.int64)
-    r_kind = np.empty(cap, dtype=np.int64)
-    r_varb = np.empty(cap)
-    r_pk = np.empty(cap)
-    r_ar = np.empty(cap)
-    q = 0
-    for i in range(nk):
-        if not merged[i]:
-            r_xy[q, 0], r_xy[q, 1] = o_xy[i, 0], o_xy[i, 1]
-            r_tr[q, 0], r_tr[q, 1] = t_xy[i, 0], t_xy[i, 1]
-            r_in[q], r_pk[q], r_ar[q], r_varb[q] = inten[i], peak[i], area[i], var_bd[i]
-            r_star[q], r_expo[q], r_kind[q] = star[i], expo[i], kind[i]
-            q += 1
-    n_single = q
-    slot = np.full(nk, -1, dtype=np.int64)
-    lead_w = np.empty(nk)
-    for i in range(nk):
-        if merged[i]:
-            root = _find(parent, i)
-            if slot[root] < 0:
-                slot[root] = q
-                r_in[q] = 0.0
-                r_xy[q, 0] = 0.0
-                r_xy[q, 1] = 0.0
-                r_pk[q] = 0.0
-                r_ar[q] = 0.0
-                lead_w[root] = -1.0
-                q += 1
-            g = slot[root]
-            w = inten[i]
-            r_in[g] += w
-            r_xy[g, 0] += w * o_xy[i, 0]
-            r_xy[g, 1] += w * o_xy[i, 1]
-            r_pk[g] += peak[i]
-            r_ar[g] += area[i]
-            if w >= lead_w[root]:  # the brightest member labels the merged detection (the last of equals)
-                lead_w[root] = w
-                r_tr[g, 0], r_tr[g, 1] = t_xy[i, 0], t_xy[i, 1]
-                r_varb[g] = var_bd[i]
-                r_star[g], r_expo[g], r_kind[g] = star[i], expo[i], kind[i]
-    # finish the optical and charge spots
-    n_spots = q
-    for g in range(n_single, n_spots):
-        r_xy[g, 0] /= r_in[g]
-        r_xy[g, 1] /= r_in[g]
-    for g in range(n_spots):
-        bg_e = _mean_e(background, r_tr[g, 0], r_tr[g, 1])
-        r_sat[g] = (r_pk[g] + bg_e) / g_dn + bias_dn >= saturation_dn
-        sigma_dn = math.sqrt(r_varb[g]) / g_dn
-        ar = max(np.rint(r_ar[g]), 1.0)
-        r_area[g] = np.int64(ar)
-        r_peak[g] = min(r_pk[g] / g_dn, saturation_dn - bias_dn)
-        r_snr[g] = r_in[g] / g_dn / (sigma_dn * math.sqrt(ar))
-        r_in[g] = r_in[g] / g_dn
-    # hot pixels: background + their own dark charge, detected when the drawn DN crosses the threshold
-    integration_s = background[12]
-    for h in range(n_h):
-        hr, hc = hot_index[h] // n_cols, hot_index[h] % n_cols
-        qe = background[6] * _optical_pe(background, float(hc), float(hr))
-        hot_e = hot_dark_e_per_s[h] * integration_s
-        var0 = background[7] * qe + background[5] + background[8]
-        mean_dn0 = (qe + background[5]) / g_dn + bias_dn
-        sd_dn0 = math.sqrt((var0 + (background[9] * qe) ** 2) / g_dn ** 2 + 1.0 / 12.0)
-        e_h = qe + background[5] + hot_e + math.sqrt(var0 + hot_e) * z_hot[h]
-        dn = min(max(np.rint(min(e_h, full_well_e) / g_dn + bias_dn), 0.0), adc_max_dn)
-        if dn > mean_dn0 + k_sigma * sd_dn0:
-            sig = dn - mean_dn0
-            r_xy[q, 0], r_xy[q, 1] = float(hc), float(hr)
-            r_tr[q, 0], r_tr[q, 1] = float(hc), float(hr)
-            r_in[q], r_peak[q], r_area[q], r_sat[q] = sig, sig, 1, dn >= saturation_dn
-            r_snr[q] = sig / max(sd_dn0, 1e-9)
-            r_star[q], r_expo[q], r_kind[q] = -1, -1, kind_hot
-            q += 1
-    # background threshold crossings
-    for f in range(n_f):
-        fr, fc = noise_index[f] // n_cols, noise_index[f] % n_cols
-        x, y = float(fc), float(fr)
-        sig = noise_dn[f] - (_mean_e(background, x, y) / g_dn + bias_dn)
-        sd = math.sqrt(_var_e(background, x, y) / g_dn ** 2 + 1.0 / 12.0)
-        r_xy[q, 0], r_xy[q, 1] = x, y
-        r_tr[q, 0], r_tr[q, 1] = x, y
-        r_in[q], r_peak[q], r_area[q], r_sat[q] = sig, sig, 1, noise_dn[f] >= saturation_dn
-        r_snr[q] = sig / max(sd, 1e-9)
-        r_star[q], r_expo[q], r_kind[q] = -1, -1, kind_noise
-        q += 1
-    order = np.argsort(-r_in[:q], kind="mergesort")
+    c_id, c_g, c_src, n_optical, n_star = _candidates(
+        xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s, t_end_rel_s,
+        cosmic_start_xy, cosmic_end_xy, cosmic_e, n_cols, n_rows)
+    rows, det, reach = _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma)
+    f, lab, area, sat, q = _assemble(det, reach, c_src, rows, n_star, n_optical, kinds, sensor, background, k_sigma,
+                                     hot_index.shape[0] + noise_index.shape[0])
+    q = _single_pixels(f, lab, area, sat, q, hot_index, hot_dark_e_per_s, z_hot, noise_index, noise_dn, background,
+                       sensor, k_sigma, n_cols, kinds)
+    key = np.empty(q)
+    for i in range(q):
+        key[i] = f[i, 4]
+    order = order_decreasing(key)
     cx, cy = background[3], background[4]
-    bg_dn = _mean_e(background, cx, cy) / g_dn + bias_dn
-    noise_dn_c = math.sqrt(_var_e(background, cx, cy) / g_dn ** 2 + 1.0 / 12.0)
-    return (r_xy[order], r_in[order], r_area[order], r_sat[order], r_peak[order], r_snr[order], r_star[order],
-            r_expo[order], r_kind[order], r_tr[order], bg_dn, noise_dn_c)
+    q_c = background[6] * max(background[0], 0.0)
+    g_dn = sensor[10]
+    bg_dn = (q_c + background[5]) / g_dn + sensor[7]
+    noise_dn_c = math.sqrt((background[7] * q_c + background[5] + background[8] + (background[9] * q_c) ** 2) / g_dn ** 2
+                           + 1.0 / 12.0)
+    xy = np.empty((q, 2))
+    truth_xy = np.empty((q, 2))
+    inten = np.empty(q)
+    peak = np.empty(q)
+    snr = np.empty(q)
+    area_o = np.empty(q, dtype=np.int64)
+    sat_o = np.empty(q, dtype=np.bool_)
+    star = np.empty(q, dtype=np.int64)
+    expo = np.empty(q, dtype=np.int64)
+    kind = np.empty(q, dtype=np.int64)
+    for t in range(q):
+        i = order[t]
+        xy[t, 0] = f[i, 0]
+        xy[t, 1] = f[i, 1]
+        truth_xy[t, 0] = f[i, 2]
+        truth_xy[t, 1] = f[i, 3]
+        inten[t] = f[i, 4]
+        peak[t] = f[i, 5]
+        snr[t] = f[i, 6]
+        area_o[t] = area[i]
+        sat_o[t] = sat[i]
+        star[t] = lab[i, 0]
+        expo[t] = lab[i, 1]
+        kind[t] = lab[i, 2]
+    return xy, inten, area_o, sat_o, peak, snr, star, expo, kind, truth_xy, bg_dn, noise_dn_c

@@ -37,7 +37,6 @@ import numpy as np
 
 from startracker.catalog import StarCatalog
 from startracker.optics import Camera
-from startracker.rotations import quat_interpolate
 from startracker.validation import as_float_array, check_int, check_positive
 from startracker.kernels import scene as sk
 
@@ -424,11 +423,17 @@ def _evaluate_attitude(attitude, t: np.ndarray, validate: bool) -> np.ndarray:
         return q / n
     if isinstance(attitude, (tuple, list)) and len(attitude) == 2:
         t_s, q_s = attitude
-        if validate:
-            q = quat_interpolate(t_s, q_s, t)  # its checks (increasing times, coverage, non-zero samples)
-            if not np.all(np.isfinite(q)):
-                raise ValueError("attitude contains NaN or inf")
-            t_s, q_s = np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(q_s, dtype=np.float64)
+        if validate:  # the checks of startracker.rotations.quat_interpolate
+            t_s = np.ascontiguousarray(as_float_array(t_s, "t_samples", ndim=1))
+            q_s = np.ascontiguousarray(as_float_array(q_s, "q_samples", last_dim=4, ndim=2))
+            if len(t_s) != len(q_s) or len(t_s) < 2:
+                raise ValueError("t_samples and q_samples must have the same length >= 2")
+            if np.any(np.diff(t_s) <= 0):
+                raise ValueError("t_samples must be strictly increasing")
+            if t[0] < t_s[0] - 1e-12 or t[-1] > t_s[-1] + 1e-12:
+                raise ValueError(f"the exposures [{t[0]}, {t[-1]}] must lie in the attitude history [{t_s[0]}, {t_s[-1]}]")
+            if np.any(np.all(q_s == 0.0, axis=-1)):
+                raise ValueError("q_samples contains a zero quaternion, which is not a rotation")
         return sk.interpolate_attitudes(t_s, q_s, t)
     raise TypeError("attitude must be a callable t -> q_body_to_icrs (len(t), 4) or a tuple (t_samples, q_samples)")
 
@@ -496,7 +501,7 @@ def compute_scene(
     attitude : callable or tuple
         ``attitude(t)`` with ``t`` an array of s returning ``q_body_to_icrs`` (len(t), 4) (w, x, y, z),
         or a tuple ``(t_samples (S,), q_samples (S, 4))`` interpolated as
-        :func:`startracker.rotations.quat_interpolate` does (must cover the exposures).
+        :func:`startracker.rotations.quat_interpolate` does (scipy's Slerp; must cover the exposures).
     plan : ExposurePlan
     t_frame_start : float
         Frame start time, s.

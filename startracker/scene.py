@@ -37,9 +37,8 @@ import numpy as np
 
 from startracker.catalog import StarCatalog
 from startracker.optics import Camera
-from startracker.rotations import quat_interpolate
 from startracker.validation import as_float_array, check_int, check_positive
-from startracker.kernels import rotations as rk
+from startracker.kernels import scene as sk
 
 __all__ = [
     "ExposurePlan",
@@ -406,7 +405,8 @@ class Scene:
 AttitudeLike = Callable[[np.ndarray], np.ndarray] | tuple
 
 
-def _evaluate_attitude(attitude, t: np.ndarray) -> np.ndarray:
+def _evaluate_attitude(attitude, t: np.ndarray, validate: bool) -> np.ndarray:
+    """Unit ``q_body_to_icrs`` (len(t), 4) at the instants ``t``, from a callable or a sampled history."""
     if callable(attitude):
         q = attitude(t)
         try:
@@ -415,46 +415,67 @@ def _evaluate_attitude(attitude, t: np.ndarray) -> np.ndarray:
             raise ValueError("attitude(t) must return a numeric array of shape (len(t), 4)") from None
         if q.shape != (len(t), 4):
             raise ValueError(f"attitude(t) must return shape ({len(t)}, 4) (w, x, y, z), got {q.shape}")
-    elif isinstance(attitude, (tuple, list)) and len(attitude) == 2:
+        if not np.all(np.isfinite(q)):
+            raise ValueError("attitude contains NaN or inf")
+        n = np.sqrt(np.add.reduce(q * q, axis=1))[:, None]
+        if np.any(n < 1e-9):
+            raise ValueError("attitude contains a zero quaternion")
+        return q / n
+    if isinstance(attitude, (tuple, list)) and len(attitude) == 2:
         t_s, q_s = attitude
-        q = quat_interpolate(t_s, q_s, t)  # quat_interpolate's checks and result, without scipy's overhead
-    else:
-        raise TypeError("attitude must be a callable t -> q_body_to_icrs (len(t), 4) or a tuple (t_samples, q_samples)")
-    if not np.all(np.isfinite(q)):
-        raise ValueError("attitude contains NaN or inf")
-    n = np.linalg.norm(q, axis=1, keepdims=True)
-    if np.any(n < 1e-9):
-        raise ValueError("attitude contains a zero quaternion")
-    return q / n
+        if validate:  # the checks of startracker.rotations.quat_interpolate
+            t_s = np.ascontiguousarray(as_float_array(t_s, "t_samples", ndim=1))
+            q_s = np.ascontiguousarray(as_float_array(q_s, "q_samples", last_dim=4, ndim=2))
+            if len(t_s) != len(q_s) or len(t_s) < 2:
+                raise ValueError("t_samples and q_samples must have the same length >= 2")
+            if np.any(np.diff(t_s) <= 0):
+                raise ValueError("t_samples must be strictly increasing")
+            if t[0] < t_s[0] - 1e-12 or t[-1] > t_s[-1] + 1e-12:
+                raise ValueError(f"the exposures [{t[0]}, {t[-1]}] must lie in the attitude history [{t_s[0]}, {t_s[-1]}]")
+            if np.any(np.all(q_s == 0.0, axis=-1)):
+                raise ValueError("q_samples contains a zero quaternion, which is not a rotation")
+        return sk.interpolate_attitudes(t_s, q_s, t)
+    raise TypeError("attitude must be a callable t -> q_body_to_icrs (len(t), 4) or a tuple (t_samples, q_samples)")
 
 
-def _rotate_rows_transposed(r: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``np.einsum("tji,kj->tki", r, v)`` (R_tᵀ v_k for every t, k), the same products summed in the same order
-    (j = 0, 1, 2) with broadcasting, at about half the cost of einsum's generic loop."""
-    out = np.multiply(v[None, :, 0, None], r[:, None, 0, :])
-    out += v[None, :, 1, None] * r[:, None, 1, :]
-    out += v[None, :, 2, None] * r[:, None, 2, :]
-    return out
+_CAMERA_CACHE: dict = {}
 
 
-_CORNER_CACHE: dict = {}
-
-
-def _corner_half_diagonal_rad(camera: Camera) -> float:
-    """Angle from the boresight to the farthest detector corner (unprojected, so distortion included), rad;
-    a constant of the camera, computed once per camera."""
+def _camera_constants(camera: Camera):
+    """The constants of a (frozen) camera a scene uses, computed once per camera object: the angle from the
+    boresight to the farthest detector corner (unprojected, so distortion included, rad), the mounting as a
+    quaternion and a matrix, and whether ``project`` is the plain pinhole (subclasses may transform it)."""
     key = id(camera)
-    hit = _CORNER_CACHE.get(key)
+    hit = _CAMERA_CACHE.get(key)
     if hit is not None and hit[0] is camera:
         return hit[1]
     w_px, h_px = camera.resolution
     corners = np.array([[-0.5, -0.5], [w_px - 0.5, -0.5], [-0.5, h_px - 0.5], [w_px - 0.5, h_px - 0.5]])
     v_corner = camera.unproject(corners)
     half_diag = float(np.arccos(np.clip(v_corner[:, 2].min(), -1.0, 1.0)))
-    if len(_CORNER_CACHE) > 64:
-        _CORNER_CACHE.clear()
-    _CORNER_CACHE[key] = (camera, half_diag)
-    return half_diag
+    q_cb = np.array(camera.q_cam_to_body, dtype=np.float64)
+    r_cb = np.ascontiguousarray(camera.r_cam_to_body, dtype=np.float64)
+    pinhole = type(camera).project is Camera.project
+    consts = (half_diag, q_cb, r_cb, pinhole, float(camera.focal_length_mm), float(camera.distortion_k1_per_mm2),
+              float(camera.pixel_size_mm), float(camera.principal_point[0]), float(camera.principal_point[1]),
+              int(w_px), int(h_px), float(camera.focal_length_px))
+    if len(_CAMERA_CACHE) > 64:
+        _CAMERA_CACHE.clear()
+    _CAMERA_CACHE[key] = (camera, consts)
+    return consts
+
+
+_UNIT_PATH = {}
+
+
+def _path_fractions(s: int) -> np.ndarray:
+    """``linspace(0, 1, s)``, read-only, once per S."""
+    f = _UNIT_PATH.get(s)
+    if f is None:
+        f = np.linspace(0.0, 1.0, s)
+        f.setflags(write=False)
+        _UNIT_PATH[s] = f
+    return f
 
 
 def compute_scene(
@@ -467,6 +488,7 @@ def compute_scene(
     bright_bodies: Sequence[BrightBody] = (),
     n_path_samples: int = 3,
     edge_margin_px: float = 6.0,
+    validate: bool = True,
 ) -> Scene:
     """Where every catalog star falls on the detector during each exposure of a frame.
 
@@ -478,8 +500,8 @@ def compute_scene(
         Stars to image (e.g. ``load_catalog(6.0)``).
     attitude : callable or tuple
         ``attitude(t)`` with ``t`` an array of s returning ``q_body_to_icrs`` (len(t), 4) (w, x, y, z),
-        or a tuple ``(t_samples (S,), q_samples (S, 4))`` interpolated with
-        :func:`startracker.rotations.quat_interpolate` (must cover the exposures).
+        or a tuple ``(t_samples (S,), q_samples (S, 4))`` interpolated as
+        :func:`startracker.rotations.quat_interpolate` does (scipy's Slerp; must cover the exposures).
     plan : ExposurePlan
     t_frame_start : float
         Frame start time, s.
@@ -490,6 +512,11 @@ def compute_scene(
     edge_margin_px : float
         Stars whose path comes within this margin of the detector are kept (their light reaches the
         edge pixels); ``visible`` still requires the mid-time position to be on the detector.
+    validate : bool
+        False skips the argument checks, for a per-frame caller that passes the types above, a float
+        ``t_frame_start``, an int S and a float margin, and a sampled history of float64 C-contiguous arrays
+        (strictly increasing times covering the exposures, non-zero quaternions). A callable attitude is
+        always checked.
 
     Returns
     -------
@@ -499,74 +526,56 @@ def compute_scene(
     -----
     Candidates come from one ``catalog.cone_search`` around the mean boresight, with a radius that covers
     the detector's corners (unprojected, so distortion is included), the boresight's motion over the
-    frame and the margin; only candidates are projected, at the ``N × S`` path instants.
+    frame and the margin; only candidates are projected, at the ``N × S`` path instants
+    (:mod:`startracker.kernels.scene`). A camera whose class overrides ``project`` (a detector rotated in its
+    plane, :class:`startracker.color.ChannelCamera`) has its ``project`` applied to the rotated directions.
     """
-    if not isinstance(camera, Camera):
-        raise TypeError(f"camera must be a startracker.optics.Camera, got {type(camera).__name__}")
-    if not isinstance(catalog, StarCatalog):
-        raise TypeError(f"catalog must be a StarCatalog, got {type(catalog).__name__}")
-    if not isinstance(plan, ExposurePlan):
-        raise TypeError(f"plan must be an ExposurePlan, got {type(plan).__name__}")
-    t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))
-    s = check_int(n_path_samples, "n_path_samples", lo=3)
-    if s % 2 == 0:
-        raise ValueError(f"n_path_samples must be odd (the middle sample is the timestamp), got {s}")
-    margin = check_positive(edge_margin_px, "edge_margin_px", allow_zero=True)
-    bodies = tuple(bright_bodies)
-    for b in bodies:
-        if not isinstance(b, BrightBody):
-            raise TypeError("bright_bodies must contain BrightBody objects")
+    if validate:
+        if not isinstance(camera, Camera):
+            raise TypeError(f"camera must be a startracker.optics.Camera, got {type(camera).__name__}")
+        if not isinstance(catalog, StarCatalog):
+            raise TypeError(f"catalog must be a StarCatalog, got {type(catalog).__name__}")
+        if not isinstance(plan, ExposurePlan):
+            raise TypeError(f"plan must be an ExposurePlan, got {type(plan).__name__}")
+        t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))
+        s = check_int(n_path_samples, "n_path_samples", lo=3)
+        if s % 2 == 0:
+            raise ValueError(f"n_path_samples must be odd (the middle sample is the timestamp), got {s}")
+        margin = check_positive(edge_margin_px, "edge_margin_px", allow_zero=True)
+        bodies = tuple(bright_bodies)
+        for b in bodies:
+            if not isinstance(b, BrightBody):
+                raise TypeError("bright_bodies must contain BrightBody objects")
+    else:
+        t0, s, margin, bodies = t_frame_start, n_path_samples, edge_margin_px, bright_bodies
 
+    (half_diag, q_cb, r_cb, pinhole, f_mm, k1, pix_mm, cx, cy, w_px, h_px, f_px) = _camera_constants(camera)
     n = plan.n_exposures
-    starts = plan.exposure_start_times(t0)
-    path_times = starts[:, None] + plan.exposure_s * np.linspace(0.0, 1.0, s)[None, :]
-    q_bw = _evaluate_attitude(attitude, path_times.ravel())
-    r_cw = rk.quat_to_matrix(q_bw) @ camera.r_cam_to_body  # (N*S, 3, 3), v_world = R v_cam
-    bores = r_cw[:, :, 2]
-    centre = bores.mean(axis=0)
-    centre /= np.linalg.norm(centre)
-    w_px, h_px = camera.resolution
-    half_diag = _corner_half_diagonal_rad(camera)
-    drift = float(np.arccos(np.clip((bores @ centre).min(), -1.0, 1.0)))
-    radius = min(half_diag + drift + (margin + 2.0) / camera.focal_length_px + 1e-6, np.pi)
+    starts = t0 + plan.start_offset_s + plan.spacing_s * np.arange(n)
+    path_times = starts[:, None] + plan.exposure_s * _path_fractions(s)[None, :]
+    q_bw = _evaluate_attitude(attitude, path_times.ravel(), validate)
+    r_cw, q_cam_mid, centre, drift = sk.camera_frames(q_bw, q_cb, r_cb, s)
+    radius = min(half_diag + drift + (margin + 2.0) / f_px + 1e-6, np.pi)
     idx = catalog.cone_search(centre, radius)
 
-    if len(idx):
-        v_world = catalog.vectors[idx]  # (K, 3)
-        v_cam = _rotate_rows_transposed(r_cw, v_world)  # R^T v for every instant, (N*S, K, 3)
-        xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
-        xy = xy.reshape(n * s, len(idx), 2)
-        in_front = in_front.reshape(n * s, len(idx))
-        near = (
-            in_front
-            & (xy[..., 0] >= -0.5 - margin)
-            & (xy[..., 0] <= w_px - 0.5 + margin)
-            & (xy[..., 1] >= -0.5 - margin)
-            & (xy[..., 1] <= h_px - 0.5 + margin)
-        )
-        keep = near.any(axis=0)
-        idx = idx[keep]
-        xy_path = xy[:, keep].reshape(n, s, len(idx), 2).copy()
-        front = in_front[:, keep].reshape(n, s, len(idx)).all(axis=1)
+    if pinhole:
+        keep, xy_path, visible = sk.project_scene(r_cw, catalog.vectors, idx, f_mm, k1, pix_mm, cx, cy, s, w_px, h_px,
+                                                  float(margin))
     else:
-        xy_path = np.zeros((n, s, 0, 2))
-        front = np.zeros((n, 0), dtype=bool)
-    mid = xy_path[:, s // 2]
-    visible = (
-        front
-        & (mid[..., 0] >= -0.5)
-        & (mid[..., 0] <= w_px - 0.5)
-        & (mid[..., 1] >= -0.5)
-        & (mid[..., 1] <= h_px - 0.5)
-    )
+        v_cam = sk.rotate_to_camera(r_cw, catalog.vectors, idx)
+        xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
+        keep, xy_path, visible = sk.select_near_detector(
+            np.ascontiguousarray(xy, dtype=np.float64).reshape(n * s, len(idx), 2),
+            np.ascontiguousarray(in_front).reshape(n * s, len(idx)), s, w_px, h_px, float(margin))
+    idx = idx[keep]
 
     mid_rows = np.arange(n) * s + s // 2
-    q_mid = q_bw[mid_rows]
-    r_cw_mid = r_cw[mid_rows]
     views = []
-    for b in bodies:
-        d_cam = np.einsum("tji,j->ti", r_cw_mid, np.asarray(b.direction_world))
-        views.append(BrightBodyView(b.name, np.arccos(np.clip(d_cam[:, 2], -1.0, 1.0)), d_cam))
+    if bodies:
+        r_cw_mid = r_cw[mid_rows]
+        for b in bodies:
+            d_cam = np.einsum("tji,j->ti", r_cw_mid, np.asarray(b.direction_world))
+            views.append(BrightBodyView(b.name, np.arccos(np.clip(d_cam[:, 2], -1.0, 1.0)), d_cam))
 
     return Scene(
         camera=camera,
@@ -574,14 +583,14 @@ def compute_scene(
         t_frame_start=t0,
         times=path_times[:, s // 2].copy(),
         path_times=path_times,
-        star_index=idx.astype(np.int64),
+        star_index=idx,
         hip=catalog.hip[idx],
         vmag=catalog.vmag[idx],
         bv=catalog.bv[idx],
         xy_path=xy_path,
         visible=visible,
-        q_body_to_icrs=q_mid,
-        q_cam_to_icrs=rk.quat_from_matrix(r_cw_mid),
+        q_body_to_icrs=q_bw[mid_rows],
+        q_cam_to_icrs=q_cam_mid,
         bright_bodies=tuple(views),
     )
 

@@ -329,3 +329,257 @@ def test_calibration_fits_a_new_detector():
     np.testing.assert_allclose(c.p_det, p.p_det, atol=0.08)
     ok = p.found > 20
     np.testing.assert_allclose(c.quantile(0.5)[ok], p.quantile(0.5)[ok], rtol=0.3)
+
+
+# ------------------------------------------------------------------------------------- compiled kernel vs theory
+def reference_spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, err, intensified):
+    """The closed-form statistics of a thresholded centre of mass, written out in numpy (the independent
+    reference of startracker.kernels.centroid.spot_theory; the model is in its docstring)."""
+    from scipy.special import erf
+
+    se2 = sigma**2 + 1.0 / 12.0
+    se = np.sqrt(se2)
+    lpos = np.maximum(length, 1e-9)
+    phi = np.where(length > 1e-6, (np.sqrt(2 * np.pi) * se / lpos) * erf(lpos / (2 * np.sqrt(2) * se)), 1.0)
+    total_e = gain * s_units
+    peak = total_e * phi / (2 * np.pi * se2)
+    s_safe = np.maximum(s_units, 1e-12)
+    if intensified:
+        var_peak = peak**2 * f2 / s_safe + gain * f2 * c_splash * peak + var_b
+    else:
+        var_peak = gain * f2 * peak + var_b
+    cp = err.peak_factor * peak
+    p_det = ndtr((cp - thr_e) / np.sqrt(var_peak))
+    a = np.maximum(np.log(np.maximum(cp / np.maximum(thr_e, 1e-12), 1e-300)), err.min_log_ratio)
+    r2 = 2.0 * se2 * a
+    r = np.sqrt(r2)
+    frac = np.maximum(1.0 - np.exp(-a), 1e-6)
+    m2 = se2 * (1.0 - a * np.exp(-a) / frac)
+    l2 = length**2 / 12.0
+    if intensified:
+        ph_cross = f2 * (sigma_o**2 + c_splash * m2 / frac) / s_safe
+        ph_along = f2 * (sigma_o**2 + l2 + c_splash * (m2 + l2) / frac) / s_safe
+    else:
+        ph_cross = f2 * m2 / (s_safe * frac)
+        ph_along = f2 * (m2 + l2) / (s_safe * frac)
+    cap = total_e * frac
+    cap2 = np.maximum(cap, 1e-12) ** 2
+    disc = np.pi * r2**2 / 4
+    bg_cross = var_b * (disc + (2 * r) ** 3 * length / 12) / cap2
+    bg_along = var_b * (disc + 2 * r * length**3 / 12 + np.pi * r2 * length**2 / 4) / cap2
+    edge_k = thr_e * np.sqrt(var_b) * se2 / np.maximum(r, 1e-6) / cap2 / np.sqrt(np.pi)
+    bg_cross = bg_cross + edge_k * (2 * length * r2 + np.pi * r2 * r)
+    bg_along = bg_along + edge_k * (length**3 / 6 + np.pi * r * length**2 / 2 + np.pi * r2 * r + 2 * length * r2)
+    lock_cross = (1.0 - m2 / se2) ** 2 / 12.0
+    lock_along = (1.0 - (m2 + l2) / (se2 + l2)) ** 2 / 12.0
+    area = np.maximum(np.pi * r2 + 2 * r * length, 1.0)
+    return dict(
+        p_det=p_det, ph_along=ph_along, ph_cross=ph_cross, bg_along=bg_along, bg_cross=bg_cross,
+        lock_along=lock_along, lock_cross=lock_cross,
+        var_cross=err.photon_factor * ph_cross + err.background_factor * bg_cross + err.locking_factor * lock_cross,
+        var_along=err.photon_factor * ph_along + err.background_factor * bg_along + err.locking_factor * lock_along,
+        cap=cap, var_cap=gain * gain * f2 * s_units * frac + var_b * area, area=area, peak=peak)
+
+
+@pytest.mark.parametrize("intensified", [True, False])
+def test_spot_theory_kernel_matches_the_reference_formulas(intensified):
+    from startracker.centroid.fidelity import default_error_model
+    from startracker.kernels.centroid import THEORY_COLUMNS, spot_theory
+
+    model = SensorModel.preset("paper000" if intensified else "paper000_cmos")
+    err = default_error_model(model)
+    rng = np.random.default_rng(4)
+    p = 500
+    s_units = 10 ** rng.uniform(0, 6, p)
+    length = np.where(rng.random(p) < 0.2, 0.0, rng.uniform(0, 30, p))
+    var_b = rng.uniform(5, 500, p)
+    thr = 5.0 * np.sqrt(var_b)
+    args = (model.intensifier_gain, model.excess_noise_factor**2, model.sigma_px, model.optics_sigma_px,
+            model.splash_energy)
+    got = spot_theory(s_units, *args, length, var_b, thr,
+                      np.array([err.peak_factor, err.photon_factor, err.background_factor, err.locking_factor,
+                                err.min_log_ratio]), intensified)
+    ref = reference_spot_theory(s_units, *args, length, var_b, thr, err, intensified)
+    for j, name in enumerate(THEORY_COLUMNS):
+        np.testing.assert_allclose(got[:, j], ref[name], rtol=1e-12, atol=1e-300, err_msg=name)
+    assert 0.05 < np.mean(got[:, 0]) < 0.95  # the magnitudes span rare to certain detection
+
+
+def test_detection_statistics_follow_the_analytic_formulas():
+    """Isolated moving spots over many frames: detection frequency = p_det (binomial), centroid errors along and
+    across the motion and the charge are Gaussian with the theory's variances (normalised errors of unit variance)."""
+    from startracker.centroid.fidelity import default_error_model
+
+    cam = Camera(resolution=(1024, 1024))
+    model = quiet(SensorModel.preset("paper000"))
+    err = default_error_model(model)
+    plan = ExposurePlan(1, 1e-3, frame_period_s=0.1)
+    rng = np.random.default_rng(12)
+    g = np.arange(40.0, 1000.0, 80.0)
+    xy = np.column_stack([a.ravel() for a in np.meshgrid(g, g)])
+    m = len(xy)
+    ang = rng.uniform(0, 2 * np.pi, m)
+    vel = 2500.0 * np.column_stack([np.cos(ang), np.sin(ang)])  # 2.5 px streaks
+    vmag = np.linspace(3.0, 8.5, m)
+    sc = scene_from_tracks(cam, plan, xy, vmag, vel)
+    bg = background_field(sc, model)
+    var_b = bg.var_e(xy[:, 0], xy[:, 1]) + model.gain_e_per_dn**2 / 12
+    th = reference_spot_theory(model.star_pe(vmag, np.zeros(m), 1e-3), model.intensifier_gain,
+                               model.excess_noise_factor**2, model.sigma_px, model.optics_sigma_px, model.splash_energy,
+                               sc.smear_px[0], var_b, 5.0 * np.sqrt(var_b), err, True)
+    n_frames = 150
+    found = np.zeros(m)
+    z_al, z_cr, z_q = [], [], []
+    along = vel / np.linalg.norm(vel, axis=1, keepdims=True)
+    for _ in range(n_frames):
+        det = simulate_detections(sc, model, rng, "centroid", include_false=False)
+        assert np.all(det.truth_kind == KIND_STAR) and len(np.unique(det.truth_star)) == len(det)
+        s = det.truth_star
+        found[s] += 1
+        e = det.xy - xy[s]
+        z_al.append((e * along[s]).sum(1) / np.sqrt(th["var_along"][s]))
+        z_cr.append((-e[:, 0] * along[s, 1] + e[:, 1] * along[s, 0]) / np.sqrt(th["var_cross"][s]))
+        bright = th["cap"][s] > 4 * np.sqrt(th["var_cap"][s])  # the charge is floored at 1e-3 e⁻: Gaussian well above
+        z_q.append(((det.intensity * model.gain_e_per_dn - th["cap"][s]) / np.sqrt(th["var_cap"][s]))[bright])
+        np.testing.assert_allclose(det.truth_xy, xy[s], atol=1e-9)
+    p = th["p_det"]
+    assert p.min() < 0.2 and p.max() > 0.99  # from rare to certain detection
+    # binomial: each star's count within 4.5 σ, and the total within 4 σ
+    sd = np.sqrt(n_frames * p * (1 - p)) + 0.5
+    assert np.all(np.abs(found - n_frames * p) < 4.5 * sd)
+    assert abs(found.sum() - n_frames * p.sum()) < 4 * np.sqrt(np.sum(n_frames * p * (1 - p)))
+    for z in (np.concatenate(z_al), np.concatenate(z_cr), np.concatenate(z_q)):
+        n = len(z)
+        assert abs(z.mean()) < 4.0 / np.sqrt(n)
+        assert abs(z.var() - 1.0) < 4.0 * np.sqrt(2.0 / n)
+
+
+def test_spots_closer_than_their_reach_merge_into_the_brightest():
+    """Two still spots: closer than the sum of their expected threshold radii they are one detection at the
+    charge-weighted centroid with the brighter one's labels; farther, two detections."""
+    from startracker.centroid.fidelity import default_error_model
+
+    cam = Camera(resolution=(256, 256))
+    model = quiet(SensorModel.preset("paper000"))
+    plan = ExposurePlan(1, 1e-3, frame_period_s=0.1)
+    vmag = np.array([4.0, 4.6])
+    bg = background_field(scene_from_tracks(cam, plan, [[128.0, 128.0]], [5.0]), model)
+    var_b = float(bg.var_e(128.0, 128.0)) + model.gain_e_per_dn**2 / 12
+    th = reference_spot_theory(model.star_pe(vmag, np.zeros(2), 1e-3), model.intensifier_gain,
+                               model.excess_noise_factor**2, model.sigma_px, model.optics_sigma_px, model.splash_energy,
+                               np.zeros(2), np.full(2, var_b), np.full(2, 5 * np.sqrt(var_b)),
+                               default_error_model(model), True)
+    se2 = model.sigma_px**2 + 1 / 12
+    reach = np.sqrt(2 * se2 * np.log(th["peak"] / (5 * np.sqrt(var_b)))).sum()
+    for gap, n_expected in ((0.98 * reach, 1), (1.02 * reach, 2)):
+        xy = np.array([[100.0, 128.0], [100.0 + gap, 128.0]])
+        det = simulate_detections(scene_from_tracks(cam, plan, xy, vmag), model, np.random.default_rng(2), "centroid",
+                                  include_false=False)
+        assert len(det) == n_expected
+        if n_expected == 1:
+            assert det.truth_star[0] == 0
+            np.testing.assert_allclose(det.truth_xy[0], xy[0])
+            assert xy[0, 0] < det.xy[0, 0] < xy[0, 0] + 0.5 * gap  # pulled toward the fainter spot, less than halfway
+
+
+def test_saturation_flag_is_peak_plus_background_at_the_adc_limit():
+    from startracker.centroid.fidelity import default_error_model
+
+    cam = Camera(resolution=(512, 512))
+    model = quiet(SensorModel.preset("paper000_cmos"))
+    plan = ExposurePlan(1, 0.02)
+    vmag = np.linspace(-1.0, 4.0, 16)
+    xy = np.column_stack([np.linspace(30, 480, 16), np.full(16, 256.0)])
+    sc = scene_from_tracks(cam, plan, xy, vmag)
+    det = simulate_detections(sc, model, np.random.default_rng(0), "centroid", include_false=False)
+    assert len(det) == 16
+    bg = background_field(sc, model)
+    s = det.truth_star
+    var_b = bg.var_e(xy[s, 0], xy[s, 1]) + model.gain_e_per_dn**2 / 12
+    th = reference_spot_theory(model.star_pe(vmag[s], np.zeros(16), 0.02), 1.0, 1.0, model.sigma_px, model.sigma_px,
+                               1.0, np.zeros(16), var_b, 5 * np.sqrt(var_b), default_error_model(model), False)
+    expect = (th["peak"] + bg.mean_e(xy[s, 0], xy[s, 1])) / model.gain_e_per_dn + model.bias_dn >= model.saturation_dn
+    assert 0 < expect.sum() < 16
+    np.testing.assert_array_equal(det.saturated, expect)
+    np.testing.assert_allclose(det.peak, np.minimum(th["peak"] / model.gain_e_per_dn, model.saturation_dn - model.bias_dn))
+
+
+def test_draws_are_fixed_by_the_inputs_not_by_the_outcomes():
+    """Same geometry, different brightness (different detections): the generator ends in the same state."""
+    cam = Camera(resolution=(256, 256))
+    model = SensorModel.preset("paper000")
+    plan = ExposurePlan(3, 1e-3, frame_period_s=0.1)
+    xy = [[60.0, 60.0], [128.0, 180.0], [200.0, 90.0]]
+    states = []
+    for vmag in ([3.0, 4.0, 5.0], [9.0, 9.5, 10.0]):
+        rng = np.random.default_rng(7)
+        det = simulate_detections(scene_from_tracks(cam, plan, xy, vmag, np.full((3, 2), 300.0)), model, rng, "centroid")
+        states.append((np.count_nonzero(det.truth_kind == KIND_STAR), rng.random()))
+    assert states[0][0] == 9 and states[1][0] == 0
+    assert states[0][1] == states[1][1]
+
+
+def test_validate_false_gives_the_same_detections():
+    cam = camera_preset("paper000")
+    q0 = quat_random(np.random.default_rng(9))
+    sc = compute_scene(cam, load_catalog(6.0), lambda t: quat_integrate(np.broadcast_to(q0, (len(t), 4)),
+                                                                        np.radians([5.0, 3.0, 0.0]), t),
+                       ExposurePlan(10, 1e-3), 0.0)
+    model = SensorModel.preset("paper000")
+    a = simulate_detections(sc, model, np.random.default_rng(1))
+    b = simulate_detections(sc, model, np.random.default_rng(1), validate=False)
+    for f in ("xy", "intensity", "area", "saturated", "peak", "snr", "truth_star", "truth_exposure", "truth_kind"):
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    assert np.all(np.diff(a.intensity) <= 0)
+
+
+_DETERMINISM_SCRIPT = """
+import hashlib, numpy as np
+from startracker.catalog import load_catalog
+from startracker.centroid import simulate_detections
+from startracker.imaging import SensorModel
+from startracker.optics import camera_preset
+from startracker.rotations import quat_integrate, quat_random
+from startracker.scene import ExposurePlan, compute_scene
+rng = np.random.default_rng(31)
+q0 = quat_random(rng)
+t = np.linspace(0.0, 0.1, 11)
+truth = (t, quat_integrate(np.broadcast_to(q0, (11, 4)), np.radians([9.0, -6.0, 1.0]), t))
+sc = compute_scene(camera_preset("paper000"), load_catalog(6.0), truth, ExposurePlan(12, 1e-3), 0.0)
+model = SensorModel.preset("paper000")
+h = hashlib.sha256()
+for _ in range(3):
+    d = simulate_detections(sc, model, rng)
+    for a in (sc.xy_path, d.xy, d.intensity, d.area, d.saturated, d.peak, d.snr, d.truth_star, d.truth_kind, d.truth_xy):
+        h.update(np.ascontiguousarray(a).tobytes())
+print(h.hexdigest())
+"""
+
+
+def test_same_seed_same_detections_across_processes_on_a_fresh_compile_cache(tmp_path):
+    """Two interpreters, each compiling the kernels into its own empty numba cache: bit-identical scenes and
+    detections, equal to this process's."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    procs = []
+    for k in range(2):
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / f"cache{k}"), PYTHONPATH=str(root))
+        procs.append(subprocess.Popen([sys.executable, "-c", _DETERMINISM_SCRIPT], cwd=root, env=env,
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    outs = []
+    for p in procs:
+        out, errs = p.communicate(timeout=600)
+        assert p.returncode == 0, errs
+        outs.append(out.strip())
+    assert any((tmp_path / "cache0").rglob("*.nbi"))  # the kernels were compiled into the fresh cache
+    import io
+    from contextlib import redirect_stdout
+
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        exec(_DETERMINISM_SCRIPT, {})
+    assert outs[0] == outs[1] == buf.getvalue().strip()

@@ -1,0 +1,721 @@
+"""Centroid-fidelity kernels: detections of a frame drawn from its scene truth, without pixels.
+
+The checked API, the model and its calibration are in :mod:`startracker.centroid.fidelity`. Here, arrays are
+float64 (int64 / bool where said), C-contiguous, nothing is checked, and every random number comes in as an array
+drawn by the caller's ``numpy.random.Generator`` (sizes fixed by the inputs: one uniform and three normals per
+candidate spot, one normal per hot pixel), so the same draws give the same detections, bit for bit.
+
+Parameter vectors
+-----------------
+``background`` (13,): the planar expected background of :class:`startracker.imaging.BackgroundField`,
+``(opt0, opt_dx, opt_dy, cx, cy, dark_e, gain, enf2_c, read_var_e2, prnu_sigma, gain_e_per_dn, bias_dn,
+integration_s)``; optical photoelectrons at ``(x, y)`` are ``max(opt0 + opt_dx (x − cx) + opt_dy (y − cy), 0)``.
+
+``sensor`` (12,): ``(intensifier_gain, excess_noise_factor², sigma_px, optics_sigma_px, splash_energy,
+intensified (1.0 / 0.0), saturation_dn, bias_dn, full_well_e, adc_max_dn, gain_e_per_dn, cosmic_sigma_px)``.
+
+``factors`` (5,): the calibration ``(peak_factor, photon_factor, background_factor, locking_factor,
+min_log_ratio)`` of :class:`startracker.centroid.CentroidErrorModel`.
+
+``kinds`` (5,) int64: the codes of a star, debris, a cosmic ray, a hot pixel and noise (``startracker.imaging.KIND_*``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["THEORY_COLUMNS", "spot_theory", "candidate_pairs", "centroid_detections"]
+
+THEORY_COLUMNS = ("p_det", "ph_along", "ph_cross", "bg_along", "bg_cross", "lock_along", "lock_cross",
+                  "var_along", "var_cross", "cap", "var_cap", "area", "peak")
+"""Columns of :func:`spot_theory`'s result, in order."""
+
+_SQRT_2PI = math.sqrt(2.0 * math.pi)
+_INV_SQRT_PI = 1.0 / math.sqrt(math.pi)
+
+
+@njit(cache=True)
+def _ndtr(x):
+    """Standard normal CDF."""
+    return 0.5 * math.erfc(-x / math.sqrt(2.0))
+
+
+@njit(cache=True)
+def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, peak_f, photon_f, bg_f, lock_f,
+            min_log_ratio, intensified):
+    """One spot of :func:`spot_theory`: the 13 values of ``THEORY_COLUMNS``."""
+    se2 = sigma * sigma + 1.0 / 12.0
+    se = math.sqrt(se2)
+    if length > 1e-6:
+        lpos = max(length, 1e-9)
+        phi = (_SQRT_2PI * se / lpos) * math.erf(lpos / (2.0 * math.sqrt(2.0) * se))
+    else:
+        phi = 1.0
+    total_e = gain * s_units
+    peak = total_e * phi / (2.0 * math.pi * se2)
+    s_safe = max(s_units, 1e-12)
+    if intensified:
+        var_peak = peak * peak * f2 / s_safe + gain * f2 * c_splash * peak + var_b
+    else:
+        var_peak = gain * f2 * peak + var_b
+    cp = peak_f * peak
+    p_det = _ndtr((cp - thr_e) / math.sqrt(var_peak))
+    # a barely detected spot is an upward fluctuation that keeps its few brightest pixels: floor on a
+    a = max(math.log(max(cp / max(thr_e, 1e-12), 1e-300)), min_log_ratio)
+    r2 = 2.0 * se2 * a
+    r = math.sqrt(r2)
+    exp_a = math.exp(-a)
+    frac = max(1.0 - exp_a, 1e-6)
+    m2 = se2 * (1.0 - a * exp_a / frac)
+    len2 = length * length
+    len3 = len2 * length
+    l2 = len2 / 12.0
+    if intensified:
+        ph_cross = f2 * (sigma_o * sigma_o + c_splash * m2 / frac) / s_safe
+        ph_along = f2 * (sigma_o * sigma_o + l2 + c_splash * (m2 + l2) / frac) / s_safe
+    else:
+        ph_cross = f2 * m2 / (s_safe * frac)
+        ph_along = f2 * (m2 + l2) / (s_safe * frac)
+    cap = total_e * frac
+    disc = math.pi * r2 * r2 / 4.0
+    cap2 = max(cap, 1e-12) ** 2
+    a_cross = disc + (2.0 * r) ** 3 * length / 12.0
+    a_along = disc + 2.0 * r * len3 / 12.0 + math.pi * r2 * len2 / 4.0
+    # support noise: pixels near the threshold join or leave the component at random, each carrying about T
+    edge_k = _INV_SQRT_PI * thr_e * math.sqrt(var_b) * se2 / max(r, 1e-6) / cap2
+    side = 2.0 * length * r2
+    ring = math.pi * r2 * r
+    bg_cross = var_b * a_cross / cap2 + edge_k * (side + ring)
+    bg_along = var_b * a_along / cap2 + edge_k * (len3 / 6.0 + math.pi * r * len2 / 2.0 + ring + side)
+    lock_cross = (1.0 - m2 / se2) ** 2 / 12.0
+    lock_along = (1.0 - (m2 + l2) / (se2 + l2)) ** 2 / 12.0
+    var_cross = photon_f * ph_cross + bg_f * bg_cross + lock_f * lock_cross
+    var_along = photon_f * ph_along + bg_f * bg_along + lock_f * lock_along
+    area = max(math.pi * r2 + 2.0 * r * length, 1.0)
+    var_cap = gain * gain * f2 * s_units * frac + var_b * area
+    return (p_det, ph_along, ph_cross, bg_along, bg_cross, lock_along, lock_cross, var_along, var_cross, cap, var_cap,
+            area, peak)
+
+
+@njit(cache=True)
+def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, factors, intensified):
+    """Closed-form statistics of a thresholded centre of mass, spot by spot.
+
+    The model (σ_e² = σ² + 1/12 for pixel integration; L the smear length; G the gain; F² the excess noise):
+
+    * peak pixel ``P = G S φ(L) / (2π σ_e²)``, ``φ(L) = (√(2π) σ_e / L) erf(L / (2√2 σ_e))`` (1 for a still spot),
+      the peak of a uniform streak convolved with the PSF; detection probability ``Φ((c_peak P − T) / sd(P))``;
+    * threshold region: ``a = max(ln(c_peak P / T), min_log_ratio)``, radius ``R = σ_e √(2a)``, captured fraction
+      ``f = 1 − e^{−a}``, truncated second moment ``m2 = σ_e² (1 − a e^{−a} / f)``;
+    * centroid variance per axis = photon term (``F² m2 / (S f)``, plus ``L²/12`` along; with an intensifier the
+      photoelectron scatter ``F² σ_o² / S`` plus the splash shape noise) + background term (``σ_b² Σ_Ω x² / (G S
+      f)²`` over a stadium of radius R and length L, plus the support noise of the pixels at the threshold,
+      ``(1/√π) T σ_b σ_e² / R ∮ x² dl / (G S f)²``) + pixel locking (the COM over a fixed set of pixels lags the
+      true shift by ``1 − m2/σ_e²``, uniform over a pixel: that squared / 12), each scaled by its factor;
+    * captured charge ``G S f`` with variance ``G² F² S f + σ_b² area``, area ``max(π R² + 2 R L, 1)``.
+
+    Parameters
+    ----------
+    s_units : ndarray, shape (P,)
+        Expected photoelectrons of each spot (e⁻ for direct charge, with ``gain = 1``).
+    gain, f2 : float
+        Electrons per photoelectron G, excess-noise factor squared F².
+    sigma, sigma_o : float
+        Total PSF σ and its part before the intensifier, px.
+    c_splash : float
+        Σ K² of the pixel-integrated splash kernel (1 without intensifier).
+    length : ndarray, shape (P,)
+        Smear length, px.
+    var_b : ndarray, shape (P,)
+        Background variance at the spot, e⁻² (quantisation included).
+    thr_e : ndarray, shape (P,)
+        Threshold above the background mean, e⁻.
+    factors : ndarray, shape (5,)
+        Calibration factors (module docstring).
+    intensified : bool
+
+    Returns
+    -------
+    ndarray, shape (P, 13)
+        Columns ``THEORY_COLUMNS``: detection probability; photon, background and locking variance terms along
+        and across the motion (px², unscaled); total variances along and across (px²); captured charge (e⁻) and
+        its variance (e⁻²); area (px); expected peak pixel (e⁻).
+    """
+    n = s_units.shape[0]
+    out = np.empty((n, 13))
+    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
+    for i in range(n):
+        v = _theory(s_units[i], gain, f2, sigma, sigma_o, c_splash, length[i], var_b[i], thr_e[i], pf, hf, bf, lf, ml,
+                    intensified)
+        for j in range(13):
+            out[i, j] = v[j]
+    return out
+
+
+@njit(cache=True)
+def _columns(x, width):
+    """Counting sort of the points into columns at least ``width`` wide (at most about one per point): the
+    column of each point (K,), the points by column then index (K,), and where each column starts (n_col + 2,),
+    so that ``order[start[c]:start[c + 2]]`` are the points of columns c and c + 1."""
+    n = x.shape[0]
+    x0 = x[0]
+    x1 = x[0]
+    for i in range(n):
+        x0 = min(x0, x[i])
+        x1 = max(x1, x[i])
+    w = max(width, (x1 - x0) / n)
+    if not w > 0.0:
+        w = 1.0
+    col = np.empty(n, dtype=np.int64)
+    n_col = 0
+    for i in range(n):
+        col[i] = int((x[i] - x0) / w)
+        n_col = max(n_col, col[i] + 1)
+    start = np.zeros(n_col + 2, dtype=np.int64)
+    for i in range(n):
+        start[col[i] + 1] += 1
+    for c in range(n_col + 1):
+        start[c + 1] += start[c]
+    fill = np.empty(n_col + 2, dtype=np.int64)
+    for c in range(n_col + 2):
+        fill[c] = start[c]
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        order[fill[col[i]]] = i
+        fill[col[i]] += 1
+    return col, order, start
+
+
+@njit(cache=True)
+def candidate_pairs(xy, r):
+    """Pairs ``(i, j)``, ``i < j``, of points closer than ``r`` along both x and y (a superset of the pairs
+    within ``r``): points sorted into columns at least ``r`` wide, each compared with those after it in its
+    column and in the next.
+
+    Parameters
+    ----------
+    xy : ndarray, shape (K, 2)
+    r : float
+        Distance, same units as ``xy`` (>= 0).
+
+    Returns
+    -------
+    ndarray of int64, shape (Q, 2)
+    """
+    n = xy.shape[0]
+    cap = 16
+    out = np.empty((cap, 2), dtype=np.int64)
+    if n < 2:
+        return np.empty((0, 2), dtype=np.int64)
+    x = np.empty(n)
+    for i in range(n):
+        x[i] = xy[i, 0]
+    col, order, start = _columns(x, r)
+    q = 0
+    for a in range(n):
+        i = order[a]
+        for b in range(a + 1, start[col[i] + 2]):
+            j = order[b]
+            if abs(xy[j, 0] - xy[i, 0]) <= r and abs(xy[j, 1] - xy[i, 1]) <= r:
+                if q == cap:
+                    cap *= 2
+                    grown = np.empty((cap, 2), dtype=np.int64)
+                    grown[:q] = out[:q]
+                    out = grown
+                out[q, 0] = min(i, j)
+                out[q, 1] = max(i, j)
+                q += 1
+    res = np.empty((q, 2), dtype=np.int64)
+    for i in range(q):
+        res[i, 0] = out[i, 0]
+        res[i, 1] = out[i, 1]
+    return res
+
+
+@njit(cache=True)
+def _find(parent, i):
+    root = i
+    while parent[root] != root:
+        root = parent[root]
+    while parent[i] != root:  # path compression
+        nxt = parent[i]
+        parent[i] = root
+        i = nxt
+    return root
+
+
+@njit(cache=True)
+def _candidates(xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s, t_end_rel_s,
+                cosmic_start_xy, cosmic_end_xy, cosmic_e, n_cols, n_rows):
+    """The candidate spots on the detector with a signal: draw row (K,), geometry (K, 6) = x, y, dx, dy, length,
+    signal; source (K, 2) = star (-1), exposure (-1); the number of optical ones (stars, then debris), the number
+    of those that are stars."""
+    n, s, m = xy_path.shape[0], xy_path.shape[1], xy_path.shape[2]
+    nd = debris_xy0.shape[0]
+    nc = cosmic_e.shape[0]
+    n_cand = n * m + n * nd + nc
+    x_hi, y_hi = n_cols - 0.5, n_rows - 0.5
+    c_id = np.empty(n_cand, dtype=np.int64)
+    c_g = np.empty((n_cand, 6))
+    c_src = np.empty((n_cand, 2), dtype=np.int64)
+    k = 0
+    inv_s1 = 1.0 / (s - 1)
+    for e in range(n):
+        for j in range(m):
+            if not visible[e, j] or not star_pe[j] > 0.0:
+                continue
+            # trapezoid time-average of the path, polyline length
+            sx = 0.5 * (xy_path[e, 0, j, 0] + xy_path[e, s - 1, j, 0])
+            sy = 0.5 * (xy_path[e, 0, j, 1] + xy_path[e, s - 1, j, 1])
+            ln = 0.0
+            for t in range(1, s):
+                if t < s - 1:
+                    sx += xy_path[e, t, j, 0]
+                    sy += xy_path[e, t, j, 1]
+                ddx = xy_path[e, t, j, 0] - xy_path[e, t - 1, j, 0]
+                ddy = xy_path[e, t, j, 1] - xy_path[e, t - 1, j, 1]
+                ln += math.sqrt(ddx * ddx + ddy * ddy)
+            c_id[k] = e * m + j
+            c_g[k, 0] = sx * inv_s1
+            c_g[k, 1] = sy * inv_s1
+            c_g[k, 2] = xy_path[e, s - 1, j, 0] - xy_path[e, 0, j, 0]
+            c_g[k, 3] = xy_path[e, s - 1, j, 1] - xy_path[e, 0, j, 1]
+            c_g[k, 4] = ln
+            c_g[k, 5] = star_pe[j]
+            c_src[k, 0] = j
+            c_src[k, 1] = e
+            k += 1
+    n_star = k
+    for e in range(n):
+        for j in range(nd):
+            p0x = debris_xy0[j, 0] + debris_velocity_px_s[j, 0] * t_start_rel_s[e]
+            p0y = debris_xy0[j, 1] + debris_velocity_px_s[j, 1] * t_start_rel_s[e]
+            p1x = debris_xy0[j, 0] + debris_velocity_px_s[j, 0] * t_end_rel_s[e]
+            p1y = debris_xy0[j, 1] + debris_velocity_px_s[j, 1] * t_end_rel_s[e]
+            x = 0.5 * (p0x + p1x)
+            y = 0.5 * (p0y + p1y)
+            if x < -0.5 or x > x_hi or y < -0.5 or y > y_hi or not debris_pe[j] > 0.0:
+                continue
+            c_id[k] = n * m + e * nd + j
+            c_g[k, 0] = x
+            c_g[k, 1] = y
+            c_g[k, 2] = p1x - p0x
+            c_g[k, 3] = p1y - p0y
+            c_g[k, 4] = math.sqrt(c_g[k, 2] ** 2 + c_g[k, 3] ** 2)
+            c_g[k, 5] = debris_pe[j]
+            c_src[k, 0] = -1
+            c_src[k, 1] = e
+            k += 1
+    n_optical = k
+    for j in range(nc):
+        x = 0.5 * (cosmic_start_xy[j, 0] + cosmic_end_xy[j, 0])
+        y = 0.5 * (cosmic_start_xy[j, 1] + cosmic_end_xy[j, 1])
+        if x < -0.5 or x > x_hi or y < -0.5 or y > y_hi:
+            continue
+        c_id[k] = n * m + n * nd + j
+        c_g[k, 0] = x
+        c_g[k, 1] = y
+        c_g[k, 2] = cosmic_end_xy[j, 0] - cosmic_start_xy[j, 0]
+        c_g[k, 3] = cosmic_end_xy[j, 1] - cosmic_start_xy[j, 1]
+        c_g[k, 4] = math.sqrt(c_g[k, 2] ** 2 + c_g[k, 3] ** 2)
+        c_g[k, 5] = cosmic_e[j]
+        c_src[k, 0] = -1
+        c_src[k, 1] = -1
+        k += 1
+    return c_id[:k], c_g[:k], c_src[:k], n_optical, n_star
+
+
+@njit(cache=True)
+def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma):
+    """Theory, detection and measurement of the candidates: the detected rows (D,), and per detection (D, 8) =
+    truth x, y, measured x, y, charge (e⁻), expected peak (e⁻), area (px), background variance (e⁻²), and the
+    reach (D,) (expected threshold radius without the peak factor, plus half the streak)."""
+    gain, f2, sigma, sigma_o, c_splash = sensor[0], sensor[1], sensor[2], sensor[3], sensor[4]
+    intensified = sensor[5] > 0.5
+    g_dn = sensor[10]
+    cosmic_sigma = sensor[11]
+    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
+    opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
+    dark, gain_bg, enf2c, read_var, prnu = background[5], background[6], background[7], background[8], background[9]
+    se2_optical = sigma * sigma + 1.0 / 12.0
+    se2_cosmic = cosmic_sigma * cosmic_sigma + 1.0 / 12.0
+    g_dn2 = g_dn * g_dn
+    n_in = c_id.shape[0]
+    rows = np.empty(n_in, dtype=np.int64)
+    out = np.empty((n_in, 8))
+    reach = np.empty(n_in)
+    nk = 0
+    for i in range(n_in):
+        x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
+        q = gain_bg * max(opt0 + gx * (x - cx) + gy * (y - cy), 0.0)
+        var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
+        thr_e = k_sigma * math.sqrt(var_b)
+        opt = i < n_optical
+        th = _theory(su, gain if opt else 1.0, f2 if opt else 1.0, sigma if opt else cosmic_sigma,
+                     sigma_o if opt else cosmic_sigma, c_splash if opt else 1.0, ln, var_b, thr_e, pf, hf, bf, lf, ml,
+                     intensified and opt)
+        c = c_id[i]
+        if not u_detect[c] < th[0]:
+            continue
+        if ln > 1e-9:
+            ax = dx / max(ln, 1e-12)
+            ay = dy / max(ln, 1e-12)
+        else:
+            ax = 1.0
+            ay = 0.0
+        e_al = z_spot[c, 0] * math.sqrt(th[7])
+        e_cr = z_spot[c, 1] * math.sqrt(th[8])
+        rows[nk] = i
+        out[nk, 0] = x
+        out[nk, 1] = y
+        out[nk, 2] = x + (ax * e_al + (-ay) * e_cr)
+        out[nk, 3] = y + (ay * e_al + ax * e_cr)
+        out[nk, 4] = max(th[9] + z_spot[c, 2] * math.sqrt(th[10]), 1e-3)
+        out[nk, 5] = th[12]
+        out[nk, 6] = th[11]
+        out[nk, 7] = var_b
+        se2 = se2_optical if opt else se2_cosmic
+        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / thr_e, 1.0))) + 0.5 * ln
+        nk += 1
+    return rows[:nk], out[:nk], reach[:nk]
+
+
+@njit(cache=True)
+def _touching(xy, reach):
+    """Union-find labels (K,) (the smallest member of each group) of the spots closer than the sum of their
+    reaches, and whether each touches another: each spot is compared with those after it in its column and the
+    next (columns as wide as the largest possible contact distance)."""
+    n = reach.shape[0]
+    parent = np.empty(n, dtype=np.int64)
+    touched = np.zeros(n, dtype=np.bool_)
+    x = np.empty(n)
+    reach_max = 0.0
+    for i in range(n):
+        parent[i] = i
+        x[i] = xy[i, 0]
+        reach_max = max(reach_max, reach[i])
+    if n < 2:
+        return parent, touched
+    col, order, start = _columns(x, 2.0 * reach_max)
+    for a in range(n):
+        i = order[a]
+        stop = start[col[i] + 2]  # the end of the next column
+        for b in range(a + 1, stop):
+            j = order[b]
+            ddx = xy[i, 0] - xy[j, 0]
+            ddy = xy[i, 1] - xy[j, 1]
+            if ddx * ddx + ddy * ddy < (reach[i] + reach[j]) ** 2:
+                touched[i] = True
+                touched[j] = True
+                ri = _find(parent, i)
+                rj = _find(parent, j)
+                if ri != rj:
+                    parent[max(ri, rj)] = min(ri, rj)
+    for i in range(n):
+        parent[i] = _find(parent, i)
+    return parent, touched
+
+
+@njit(cache=True)
+def order_decreasing(key):
+    """Stable order of decreasing ``key`` (K,) (float64, C-contiguous, no NaN): a least-significant-digit radix
+    sort on the bits.
+
+    Returns
+    -------
+    ndarray of int64, shape (K,)
+        ``numpy.argsort(-key, kind="stable")``.
+    """
+    n = key.shape[0]
+    bits = key.view(np.uint64)
+    sign = np.uint64(1) << np.uint64(63)
+    ukey = np.empty(n, dtype=np.uint64)
+    for i in range(n):
+        b = bits[i]
+        # increasing ukey = decreasing key: non-negative keys in reverse order first, then negative ones
+        ukey[i] = b if b & sign else ~b & ~sign
+    hist = np.zeros((8, 256), dtype=np.int64)
+    for i in range(n):
+        u = ukey[i]
+        for p in range(8):
+            hist[p, (u >> np.uint64(8 * p)) & np.uint64(255)] += 1
+    idx = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        idx[i] = i
+    tmp = np.empty(n, dtype=np.int64)
+    pos = np.empty(256, dtype=np.int64)
+    for p in range(8):
+        same = False
+        for d in range(256):
+            same = same or hist[p, d] == n
+        if same:  # one digit value for every key: nothing to reorder
+            continue
+        acc = 0
+        for d in range(256):
+            pos[d] = acc
+            acc += hist[p, d]
+        shift = np.uint64(8 * p)
+        for t in range(n):
+            i = idx[t]
+            d = (ukey[i] >> shift) & np.uint64(255)
+            tmp[pos[d]] = i
+            pos[d] += 1
+        idx, tmp = tmp, idx
+    return idx
+
+
+@njit(cache=True)
+def _assemble(det, reach, src, rows, n_star, n_optical, kinds, sensor, background, k_sigma, n_extra):
+    """Merge the touching detections and finish them (DN, area, saturation, SNR): the columns of the result,
+    with room for ``n_extra`` single-pixel detections after them; returns the arrays and the count."""
+    g_dn, bias_dn, saturation_dn = sensor[10], sensor[7], sensor[6]
+    parent, touched = _touching(det[:, :2], reach)
+    nk = reach.shape[0]
+    cap = nk + n_extra
+    f = np.empty((cap, 8))  # xy, truth xy, intensity, peak, snr, background variance / area scratch
+    lab = np.empty((cap, 3), dtype=np.int64)  # star, exposure, kind
+    area = np.empty(cap, dtype=np.int64)
+    sat = np.empty(cap, dtype=np.bool_)
+    area_f = np.empty(cap)
+    q = 0
+    slot = np.empty(nk, dtype=np.int64)
+    lead_w = np.empty(nk)
+    n_single = 0
+    for i in range(nk):
+        slot[i] = -1
+        n_single += 0 if touched[i] else 1
+    for pass_ in range(2):  # the spots that touch none in order, then the groups by their smallest member
+        for i in range(nk):
+            if touched[i] != (pass_ == 1):
+                continue
+            r = rows[i]
+            if pass_ == 0:
+                g = q
+                q += 1
+                f[g, 0] = det[i, 2]
+                f[g, 1] = det[i, 3]
+                f[g, 4] = det[i, 4]
+                f[g, 5] = det[i, 5]
+                area_f[g] = det[i, 6]
+            else:
+                root = parent[i]
+                if slot[root] < 0:
+                    slot[root] = q
+                    f[q, 0] = 0.0
+                    f[q, 1] = 0.0
+                    f[q, 4] = 0.0
+                    f[q, 5] = 0.0
+                    area_f[q] = 0.0
+                    lead_w[root] = -1.0
+                    q += 1
+                g = slot[root]
+                w = det[i, 4]
+                f[g, 0] += w * det[i, 2]
+                f[g, 1] += w * det[i, 3]
+                f[g, 4] += w
+                f[g, 5] += det[i, 5]
+                area_f[g] += det[i, 6]
+                if w < lead_w[root]:  # the brightest member labels the merged detection (the last of equals)
+                    continue
+                lead_w[root] = w
+            f[g, 2] = det[i, 0]
+            f[g, 3] = det[i, 1]
+            f[g, 7] = det[i, 7]
+            lab[g, 0] = src[r, 0]
+            lab[g, 1] = src[r, 1]
+            lab[g, 2] = kinds[0] if r < n_star else (kinds[1] if r < n_optical else kinds[2])
+    for g in range(n_single, q):
+        f[g, 0] /= f[g, 4]
+        f[g, 1] /= f[g, 4]
+    opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
+    for g in range(q):
+        inten = f[g, 4]
+        bg_e = background[6] * max(opt0 + gx * (f[g, 2] - cx) + gy * (f[g, 3] - cy), 0.0) + background[5]
+        sat[g] = (f[g, 5] + bg_e) / g_dn + bias_dn >= saturation_dn
+        sigma_dn = math.sqrt(f[g, 7]) / g_dn
+        a = max(np.rint(area_f[g]), 1.0)
+        area[g] = np.int64(a)
+        f[g, 5] = min(f[g, 5] / g_dn, saturation_dn - bias_dn)
+        f[g, 6] = inten / g_dn / (sigma_dn * math.sqrt(a))
+        f[g, 4] = inten / g_dn
+    return f, lab, area, sat, q
+
+
+@njit(cache=True)
+def _single_pixels(f, lab, area, sat, q, hot_index, hot_dark_e_per_s, z_hot, noise_index, noise_dn, background, sensor,
+                   k_sigma, n_cols, kinds):
+    """Append the hot pixels that cross the threshold and the background's crossings from row ``q``; returns the
+    new count."""
+    g_dn, bias_dn, saturation_dn, full_well_e, adc_max_dn = sensor[10], sensor[7], sensor[6], sensor[8], sensor[9]
+    opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
+    dark, gain_bg, enf2c, read_var, prnu = background[5], background[6], background[7], background[8], background[9]
+    integration_s = background[12]
+    for h in range(hot_index.shape[0]):
+        # background + the pixel's own dark charge, detected when the drawn DN crosses the threshold
+        hr = hot_index[h] // n_cols
+        hc = hot_index[h] - hr * n_cols
+        qe = gain_bg * max(opt0 + gx * (hc - cx) + gy * (hr - cy), 0.0)
+        hot_e = hot_dark_e_per_s[h] * integration_s
+        var0 = enf2c * qe + dark + read_var
+        mean_dn0 = (qe + dark) / g_dn + bias_dn
+        sd_dn0 = math.sqrt((var0 + (prnu * qe) ** 2) / g_dn ** 2 + 1.0 / 12.0)
+        e_h = qe + dark + hot_e + math.sqrt(var0 + hot_e) * z_hot[h]
+        dn = min(max(np.rint(min(e_h, full_well_e) / g_dn + bias_dn), 0.0), adc_max_dn)
+        if dn > mean_dn0 + k_sigma * sd_dn0:
+            _put_pixel(f, lab, area, sat, q, hc, hr, dn - mean_dn0, dn >= saturation_dn, sd_dn0, kinds[3])
+            q += 1
+    for i in range(noise_index.shape[0]):
+        fr = noise_index[i] // n_cols
+        fc = noise_index[i] - fr * n_cols
+        qe = gain_bg * max(opt0 + gx * (fc - cx) + gy * (fr - cy), 0.0)
+        mean_dn = (qe + dark) / g_dn + bias_dn
+        sd = math.sqrt((enf2c * qe + dark + read_var + (prnu * qe) ** 2) / g_dn ** 2 + 1.0 / 12.0)
+        _put_pixel(f, lab, area, sat, q, fc, fr, noise_dn[i] - mean_dn, noise_dn[i] >= saturation_dn, sd, kinds[4])
+        q += 1
+    return q
+
+
+@njit(cache=True)
+def _put_pixel(f, lab, area, sat, q, col, row, signal_dn, saturated, sigma_dn, kind):
+    f[q, 0] = col
+    f[q, 1] = row
+    f[q, 2] = col
+    f[q, 3] = row
+    f[q, 4] = signal_dn
+    f[q, 5] = signal_dn
+    f[q, 6] = signal_dn / max(sigma_dn, 1e-9)
+    lab[q, 0] = -1
+    lab[q, 1] = -1
+    lab[q, 2] = kind
+    area[q] = 1
+    sat[q] = saturated
+
+
+@njit(cache=True)
+def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s,
+                        t_end_rel_s, cosmic_start_xy, cosmic_end_xy, cosmic_e, hot_index, hot_dark_e_per_s,
+                        noise_index, noise_dn, u_detect, z_spot, z_hot, background, sensor, factors, k_sigma, n_cols,
+                        n_rows, kinds):
+    """The detections of one frame in the centroid fidelity, brightest first.
+
+    Candidate spots, in this order (the index of a candidate picks its draws): star m in exposure i (row
+    ``i M + m``; its light centred at the trapezoid time-average of its path, its streak the polyline length,
+    its motion from the first to the last path point), debris d in exposure i (row ``N M + i D + d``; a straight
+    dash from ``xy0 + v t_start`` to ``xy0 + v t_end``), cosmic ray c (row ``N (M + D) + c``; a track of direct
+    charge with σ = ``cosmic_sigma_px``). A candidate on the detector with a positive signal is detected when
+    ``u_detect < p_det`` (:func:`spot_theory` at its background); its centroid is the truth plus
+    ``z0 √var_along`` along and ``z1 √var_cross`` across the motion, its charge ``max(cap + z2 √var_cap, 1e-3)``.
+    Detected spots whose expected threshold regions touch (distance < sum of ``R + L/2``, R without the peak
+    factor) merge into one, as connected pixels do: intensity-weighted centroid, summed charge, area and peak,
+    the labels of the brightest member. A hot pixel (dark charge over the integration window on top of the
+    background, drawn with ``z_hot``) is detected when its DN exceeds ``mean + k σ``; the background's threshold
+    crossings come in drawn (``noise_index``, ``noise_dn``). Saturation: expected peak plus background at or
+    above ``saturation_dn``.
+
+    Parameters
+    ----------
+    xy_path : ndarray, shape (N, S, M, 2)
+        Star paths, px.
+    visible : ndarray of bool, shape (N, M)
+    star_pe : ndarray, shape (M,)
+        Expected photoelectrons of each star in one exposure.
+    debris_xy0, debris_velocity_px_s : ndarray, shape (D, 2)
+        Debris position at the middle of the frame (px) and image velocity (px/s).
+    debris_pe : ndarray, shape (D,)
+        Photoelectrons per exposure.
+    t_start_rel_s, t_end_rel_s : ndarray, shape (N,)
+        Exposure start and end relative to the middle of the frame, s.
+    cosmic_start_xy, cosmic_end_xy : ndarray, shape (C, 2)
+        Cosmic-ray track ends, px.
+    cosmic_e : ndarray, shape (C,)
+        Deposited charge, e⁻.
+    hot_index : ndarray of int64, shape (H,)
+        Row-major linear pixel indices of the hot pixels.
+    hot_dark_e_per_s : ndarray, shape (H,)
+        Their extra dark current, e⁻/s.
+    noise_index : ndarray of int64, shape (F,)
+        Linear indices of background pixels drawn above the threshold.
+    noise_dn : ndarray, shape (F,)
+        Their DN.
+    u_detect : ndarray, shape (N M + N D + C,)
+        Uniform draws in [0, 1).
+    z_spot : ndarray, shape (N M + N D + C, 3)
+        Standard normal draws (along, across, charge).
+    z_hot : ndarray, shape (H,)
+        Standard normal draws.
+    background, sensor, factors : ndarray
+        Parameter vectors (module docstring).
+    k_sigma : float
+        Threshold, background σ.
+    n_cols, n_rows : int
+        Detector size, px.
+    kinds : ndarray of int64, shape (5,)
+        Kind codes (module docstring).
+
+    Returns
+    -------
+    xy : ndarray, shape (K, 2)
+        Centroids, px.
+    intensity : ndarray, shape (K,)
+        DN above the background.
+    area : ndarray of int64, shape (K,)
+    saturated : ndarray of bool, shape (K,)
+    peak : ndarray, shape (K,)
+        Peak above the background, DN (clipped at saturation).
+    snr : ndarray, shape (K,)
+    star : ndarray of int64, shape (K,)
+        Scene star index, −1 otherwise.
+    exposure : ndarray of int64, shape (K,)
+        Exposure index (stars and debris), −1 otherwise.
+    kind : ndarray of int64, shape (K,)
+    truth_xy : ndarray, shape (K, 2)
+        Where the source's light is centred, px.
+    background_dn, noise_dn : float
+        Background level and σ at the principal point, DN.
+    """
+    c_id, c_g, c_src, n_optical, n_star = _candidates(
+        xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s, t_end_rel_s,
+        cosmic_start_xy, cosmic_end_xy, cosmic_e, n_cols, n_rows)
+    rows, det, reach = _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma)
+    f, lab, area, sat, q = _assemble(det, reach, c_src, rows, n_star, n_optical, kinds, sensor, background, k_sigma,
+                                     hot_index.shape[0] + noise_index.shape[0])
+    q = _single_pixels(f, lab, area, sat, q, hot_index, hot_dark_e_per_s, z_hot, noise_index, noise_dn, background,
+                       sensor, k_sigma, n_cols, kinds)
+    key = np.empty(q)
+    for i in range(q):
+        key[i] = f[i, 4]
+    order = order_decreasing(key)
+    cx, cy = background[3], background[4]
+    q_c = background[6] * max(background[0], 0.0)
+    g_dn = sensor[10]
+    bg_dn = (q_c + background[5]) / g_dn + sensor[7]
+    noise_dn_c = math.sqrt((background[7] * q_c + background[5] + background[8] + (background[9] * q_c) ** 2) / g_dn ** 2
+                           + 1.0 / 12.0)
+    xy = np.empty((q, 2))
+    truth_xy = np.empty((q, 2))
+    inten = np.empty(q)
+    peak = np.empty(q)
+    snr = np.empty(q)
+    area_o = np.empty(q, dtype=np.int64)
+    sat_o = np.empty(q, dtype=np.bool_)
+    star = np.empty(q, dtype=np.int64)
+    expo = np.empty(q, dtype=np.int64)
+    kind = np.empty(q, dtype=np.int64)
+    for t in range(q):
+        i = order[t]
+        xy[t, 0] = f[i, 0]
+        xy[t, 1] = f[i, 1]
+        truth_xy[t, 0] = f[i, 2]
+        truth_xy[t, 1] = f[i, 3]
+        inten[t] = f[i, 4]
+        peak[t] = f[i, 5]
+        snr[t] = f[i, 6]
+        area_o[t] = area[i]
+        sat_o[t] = sat[i]
+        star[t] = lab[i, 0]
+        expo[t] = lab[i, 1]
+        kind[t] = lab[i, 2]
+    return xy, inten, area_o, sat_o, peak, snr, star, expo, kind, truth_xy, bg_dn, noise_dn_c

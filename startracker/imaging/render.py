@@ -26,6 +26,7 @@ import numpy as np
 from startracker.imaging.background import BackgroundField, FalseObjects, background_field, draw_false_objects
 from startracker.imaging.detector import SensorModel, fixed_pattern
 from startracker.kernels.imaging import (
+    background_at_pixels,
     false_pixel_cells,
     lookup_pixels,
     pixels_to_dn,
@@ -59,7 +60,10 @@ _FALSE_GRID = 64  # cells per axis for drawing the background's threshold crossi
 
 
 # ----------------------------------------------------------------------------------- pixel values
-def _pixels_to_dn(spot, bg: BackgroundField, opt_bg, prnu, model: SensorModel, rng, *, hot_u=None, hot_e=None,
+_NO_PRNU = np.zeros(0, dtype=np.float32)
+
+
+def _pixels_to_dn(spot, bg: BackgroundField, opt_bg, prnu, lin, model: SensorModel, rng, *, hot_u=None, hot_e=None,
                   direct=None):
     """Random DN of pixels given their expected signals (shared by the full-frame and sparse paths).
 
@@ -72,7 +76,10 @@ def _pixels_to_dn(spot, bg: BackgroundField, opt_bg, prnu, model: SensorModel, r
         Intensified: the randomised spot charge, e⁻; CMOS: the expected star photoelectrons.
     opt_bg : ndarray, shape (U,)
         Optical background photoelectrons (``bg.optical_pe`` at the pixels).
-    prnu : ndarray, shape (U,) or None
+    prnu : ndarray of float32, shape (n_rows * n_cols,) or None
+        The detector's PRNU pattern (:func:`fixed_pattern`).
+    lin : ndarray of int64, shape (U,)
+        Linear indices of the pixels.
     hot_u, hot_e : compact ids of the hot pixels among the U and their extra dark charge, e⁻.
     direct : ndarray, shape (U,) or None
         Charge deposited directly (cosmic rays), e⁻.
@@ -96,11 +103,8 @@ def _pixels_to_dn(spot, bg: BackgroundField, opt_bg, prnu, model: SensorModel, r
         hot_u = np.zeros(0, dtype=np.int64)
         hot_e = np.zeros(0)
     hot_z = rng.standard_normal(len(hot_u))
-    zeros = None
-    if prnu is None or direct is None:
-        zeros = np.zeros(u)
-    return pixels_to_dn(bool(model.intensified), spot, opt_bg, zeros if prnu is None else prnu, z, charge,
-                        zeros if direct is None else direct, hot_u, np.asarray(hot_e, dtype=np.float64), hot_z,
+    return pixels_to_dn(bool(model.intensified), spot, opt_bg, _NO_PRNU if prnu is None else prnu, lin, z, charge,
+                        np.zeros(u) if direct is None else direct, hot_u, np.asarray(hot_e, dtype=np.float64), hot_z,
                         float(g), float(bg.enf2_c), float(bg.dark_e), float(bg.read_var_e2), float(model.full_well_e),
                         float(model.gain_e_per_dn), float(model.bias_dn), float(model.adc_max_dn))
 
@@ -165,8 +169,9 @@ def render_frame(scene: Scene, model: SensorModel, rng: np.random.Generator, *, 
         lin, val, _ = render_windows(cosmic, 3, n_cols, n_rows)
         direct = np.bincount(lin, val, minlength=n_px)
     prnu, hot_idx, hot_rate = fixed_pattern(model, scene.camera.resolution)
-    opt = _optical_at(bg, np.arange(n_px), n_cols)
-    dn = _pixels_to_dn(spot, bg, opt, None if prnu is None else prnu.astype(np.float64), model, rng,
+    lin_all = np.arange(n_px)
+    opt = _optical_at(bg, lin_all, n_cols)
+    dn = _pixels_to_dn(spot, bg, opt, prnu, lin_all, model, rng,
                        hot_u=np.asarray(hot_idx, dtype=np.int64), hot_e=hot_rate * scene.plan.integration_window_s,
                        direct=direct)
     return dn.reshape(n_rows, n_cols).astype(np.float32, copy=False)
@@ -425,10 +430,11 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         o_lin, o_val, o_src, 1.0 if model.intensified else g, d_lin, d_val, d_src, hot_idx,
         np.asarray(hot_e_all, dtype=np.float64), q0, f_lin, q1, n_cols, n_rows, index.buf)
     index.adopt(uniq)
-    u = len(uniq)
-    prnu_u = None if prnu is None else prnu[uniq].astype(np.float64)
-    opt_u = _optical_at(bg, uniq, n_cols)
-    dn = _pixels_to_dn(spot_u, bg, opt_u, prnu_u, model, rng, hot_u=hot_u, hot_e=hot_e_all,
+    opt_u, mean_dn_u, thr_dn_u = background_at_pixels(
+        uniq, n_cols, float(bg.opt0), float(bg.opt_dx), float(bg.opt_dy), float(bg.cx), float(bg.cy), float(bg.gain),
+        float(bg.enf2_c), float(bg.dark_e), float(bg.read_var_e2), float(bg.prnu_sigma), float(model.gain_e_per_dn),
+        float(model.bias_dn), float(k_sigma))
+    dn = _pixels_to_dn(spot_u, bg, opt_u, prnu, uniq, model, rng, hot_u=hot_u, hot_e=hot_e_all,
                        direct=dir_u if cosmic is not None else None)
     if n_false:
         keep_f = false_u >= 0
@@ -445,16 +451,12 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         xy=np.concatenate([table["xy"], np.stack([hc, hr], 1).astype(float), np.stack([fc, fr], 1).astype(float)]),
         expected_e=np.concatenate([table["expected_e"], hot_e_all, np.atleast_1d(f_e)[:n_false]]),
     )
-    q_u = bg.gain * opt_u
-    mean_dn_u = (q_u + bg.dark_e) / model.gain_e_per_dn + model.bias_dn
-    sigma_dn_u = np.sqrt((bg.enf2_c * q_u + bg.dark_e + bg.read_var_e2 + (bg.prnu_sigma * q_u) ** 2)
-                         / model.gain_e_per_dn**2 + 1.0 / 12.0)
     return SparseFrame(
         shape=(n_rows, n_cols),
         lin=uniq,
         dn=dn.astype(np.float32),
         background_dn=mean_dn_u,
-        threshold_dn=mean_dn_u + k_sigma * sigma_dn_u,
+        threshold_dn=thr_dn_u,
         saturation_dn=model.saturation_dn,
         sources=sources,
         entry_pixel=inv,

@@ -13,7 +13,7 @@ from scipy.special import ndtr
 
 from startracker.imaging.background import COSMIC_SIGMA_PX, BackgroundField, FalseObjects
 from startracker.imaging.detector import SensorModel
-from startracker.kernels.imaging import render_spot_windows, shift_intensified_spots
+from startracker.kernels.imaging import render_spot_windows, shift_intensified_spots, spots_from_paths
 from startracker.scene import Scene
 
 __all__ = [
@@ -81,43 +81,14 @@ class Spots:
     direct: bool  # charge deposited directly (cosmic rays) rather than light
 
 
-def _resample_path(path: np.ndarray, n_seg: int) -> np.ndarray:
-    """Positions at n_seg+1 instants evenly spaced in time along paths sampled evenly in time.
-
-    path (E, S, 2) -> (E, n_seg+1, 2), linear between samples.
-    """
-    s = path.shape[1]
-    f = np.linspace(0.0, s - 1.0, n_seg + 1)
-    i0 = np.minimum(np.floor(f).astype(int), s - 2)
-    w = (f - i0)[None, :, None]
-    return path[:, i0] * (1 - w) + path[:, i0 + 1] * w
-
-
-def _segments_to_spots(knots, total, sigma, source, direct, max_seg_px):
-    """knots (E, n_seg+1, 2) of paths, total signal (E,), sigma (E,) -> Spots with K sub-spots per segment."""
-    e_n, n1, _ = knots.shape
-    n_seg = n1 - 1
-    a = knots[:, :-1].reshape(-1, 2)
-    b = knots[:, 1:].reshape(-1, 2)
-    d = b - a
-    length = np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2)
-    sig = np.repeat(sigma, n_seg)
-    k = int(max(1, math.ceil(float(np.max(length / (0.5 * sig), initial=0.0)))))
-    frac = (np.arange(k) + 0.5) / k
-    sub = a[:, None, :] + d[:, None, :] * frac[None, :, None]
-    w = np.repeat(total / (n_seg * k), n_seg)[:, None] * np.ones((1, k))
-    along = np.where(length[:, None] > 1e-12, d / np.maximum(length, 1e-12)[:, None], np.array([1.0, 0.0]))
-    return Spots(sub, w, sig, np.repeat(source, n_seg), along, length, direct)
-
-
 def _paths_to_spots(paths, total, sigma, source, direct):
-    """Split polylines (E, S, 2) sampled evenly in time into segments no longer than 4σ."""
+    """Split polylines (E, S, 2) sampled evenly in time into segments no longer than 4σ, sub-spots ≤ σ/2 apart."""
     if len(paths) == 0:
         return None
-    dp = np.diff(paths, axis=1)
-    seg_len = np.sqrt(dp[..., 0] ** 2 + dp[..., 1] ** 2).sum(axis=1)
-    n_seg = int(max(1, math.ceil(float(np.max(seg_len / (4.0 * sigma))))))
-    return _segments_to_spots(_resample_path(paths, n_seg), total, sigma, source, direct, 4.0 * sigma)
+    sub, w, sig, path, along, length = spots_from_paths(np.ascontiguousarray(paths, dtype=np.float64),
+                                                        np.ascontiguousarray(total, dtype=np.float64),
+                                                        np.ascontiguousarray(sigma, dtype=np.float64))
+    return Spots(sub, w, sig, source[path], along, length, direct)
 
 
 def _on_detector(paths, margin, w, h):

@@ -22,6 +22,8 @@ __all__ = [
     "false_pixel_cells",
     "place_false_pixels",
     "lookup_pixels",
+    "spots_from_paths",
+    "background_at_pixels",
 ]
 
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
@@ -340,7 +342,7 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
 
 
 @njit(cache=True)
-def pixels_to_dn(intensified, spot_e, opt_bg_pe, prnu, z, charge_e, direct_e, hot_u, hot_e, hot_z, gain,
+def pixels_to_dn(intensified, spot_e, opt_bg_pe, prnu, lin, z, charge_e, direct_e, hot_u, hot_e, hot_z, gain,
                  enf2_c, dark_e, read_var_e2, full_well_e, gain_e_per_dn, bias_dn, adc_max_dn):
     """Random DN of pixels from their expected signals and the caller's draws.
 
@@ -353,8 +355,10 @@ def pixels_to_dn(intensified, spot_e, opt_bg_pe, prnu, z, charge_e, direct_e, ho
         Intensified spot charge per pixel, e⁻.
     opt_bg_pe : ndarray, shape (U,)
         Optical background photoelectrons (sky, stray light) per pixel.
-    prnu : ndarray, shape (U,)
-        Photo-response non-uniformity (relative gain − 1).
+    prnu : ndarray of float32, shape (n_rows * n_cols,) or (0,)
+        The detector's photo-response non-uniformity (relative gain − 1), none when empty.
+    lin : ndarray of int64, shape (U,)
+        Linear indices of the pixels (into ``prnu``).
     z : ndarray, shape (U,)
         Standard normal draws (pixel noise).
     charge_e : ndarray, shape (U,)
@@ -374,15 +378,17 @@ def pixels_to_dn(intensified, spot_e, opt_bg_pe, prnu, z, charge_e, direct_e, ho
     u = len(z)
     out = np.empty(u)
     base_var = dark_e + read_var_e2
+    has_prnu = len(prnu) > 0
     for i in range(u):
         b = gain * opt_bg_pe[i]
+        f = 1.0 + np.float64(prnu[lin[i]]) if has_prnu else 1.0
         if intensified:
             q = spot_e[i] + b
             sd = math.sqrt(enf2_c * q + base_var)
-            e = q * (1.0 + prnu[i]) + dark_e + sd * z[i]
+            e = q * f + dark_e + sd * z[i]
         else:
             sd = math.sqrt(enf2_c * b + base_var)
-            e = sd * z[i] + b * (1.0 + prnu[i]) + dark_e + (1.0 + prnu[i]) * charge_e[i]
+            e = sd * z[i] + b * f + dark_e + f * charge_e[i]
         out[i] = e + direct_e[i]
     for h in range(len(hot_u)):
         i = hot_u[h]
@@ -510,3 +516,122 @@ def lookup_pixels(lin, buf, uniq):
         c = buf[lin[i]]
         out[i] = c if (c >= 0 and c < n_u and uniq[c] == lin[i]) else -1
     return out
+
+
+@njit(cache=True)
+def spots_from_paths(paths, total, sigma_px):
+    """Cut spot paths into segments no longer than 4σ and each segment into sub-spots at most σ/2 apart.
+
+    Every path is cut into the same number of segments (enough for the longest path relative to its σ), at
+    instants evenly spaced in time; each segment into the same number K of sub-spots at the midpoints of equal
+    time slices, sharing the path's signal equally.
+
+    Parameters
+    ----------
+    paths : ndarray, shape (E, S, 2)
+        Positions (column, row) at S ≥ 2 instants evenly spaced over each exposure, px.
+    total : ndarray, shape (E,)
+        Signal of each path (any unit).
+    sigma_px : ndarray, shape (E,)
+        Gaussian σ of each path's spot, px.
+
+    Returns
+    -------
+    sub_xy : ndarray, shape (P, K, 2)
+        Sub-spot centres, px (P = E × segments per path, path-major).
+    sub_w : ndarray, shape (P, K)
+    sigma : ndarray, shape (P,)
+    path : ndarray of int64, shape (P,)
+        Path of each segment.
+    along : ndarray, shape (P, 2)
+        Unit vector along each segment ((1, 0) for a still spot).
+    length : ndarray, shape (P,)
+        Segment lengths, px.
+    """
+    e_n, s, _ = paths.shape
+    ratio = 0.0
+    for e in range(e_n):
+        ln = 0.0
+        for i in range(s - 1):
+            ln += math.hypot(paths[e, i + 1, 0] - paths[e, i, 0], paths[e, i + 1, 1] - paths[e, i, 1])
+        ratio = max(ratio, ln / (4.0 * sigma_px[e]))
+    n_seg = max(1, int(math.ceil(ratio)))
+    n_p = e_n * n_seg
+    knots = np.empty((e_n, n_seg + 1, 2))
+    for j in range(n_seg + 1):
+        f = j * (s - 1.0) / n_seg
+        i0 = min(int(math.floor(f)), s - 2)
+        w = f - i0
+        for e in range(e_n):
+            for c in range(2):
+                knots[e, j, c] = paths[e, i0, c] * (1 - w) + paths[e, i0 + 1, c] * w
+    length = np.empty(n_p)
+    along = np.empty((n_p, 2))
+    sigma = np.empty(n_p)
+    path = np.empty(n_p, dtype=np.int64)
+    k_ratio = 0.0
+    for e in range(e_n):
+        for j in range(n_seg):
+            p = e * n_seg + j
+            dx = knots[e, j + 1, 0] - knots[e, j, 0]
+            dy = knots[e, j + 1, 1] - knots[e, j, 1]
+            ln = math.sqrt(dx * dx + dy * dy)
+            length[p] = ln
+            if ln > 1e-12:
+                along[p, 0] = dx / ln
+                along[p, 1] = dy / ln
+            else:
+                along[p, 0] = 1.0
+                along[p, 1] = 0.0
+            sigma[p] = sigma_px[e]
+            path[p] = e
+            k_ratio = max(k_ratio, ln / (0.5 * sigma_px[e]))
+    n_k = max(1, int(math.ceil(k_ratio)))
+    sub_xy = np.empty((n_p, n_k, 2))
+    sub_w = np.empty((n_p, n_k))
+    for e in range(e_n):
+        w = total[e] / (n_seg * n_k)
+        for j in range(n_seg):
+            p = e * n_seg + j
+            for k in range(n_k):
+                f = (k + 0.5) / n_k
+                sub_xy[p, k, 0] = knots[e, j, 0] + (knots[e, j + 1, 0] - knots[e, j, 0]) * f
+                sub_xy[p, k, 1] = knots[e, j, 1] + (knots[e, j + 1, 1] - knots[e, j, 1]) * f
+                sub_w[p, k] = w
+    return sub_xy, sub_w, sigma, path, along, length
+
+
+@njit(cache=True)
+def background_at_pixels(lin, n_cols, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2, prnu_sigma,
+                         gain_e_per_dn, bias_dn, k_sigma):
+    """The expected background of pixels: optical photoelectrons, level and detection threshold.
+
+    Parameters
+    ----------
+    lin : ndarray of int64, shape (U,)
+        Linear pixel indices.
+    n_cols : int
+    opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2, prnu_sigma, gain_e_per_dn, bias_dn : float
+        As in :class:`startracker.imaging.BackgroundField`.
+    k_sigma : float
+        Threshold in σ of the background (shot, dark, read, PRNU and 1/12 DN² quantisation).
+
+    Returns
+    -------
+    optical_pe, background_dn, threshold_dn : ndarray, shape (U,)
+    """
+    u = len(lin)
+    opt = np.empty(u)
+    mean = np.empty(u)
+    thr = np.empty(u)
+    g2 = gain_e_per_dn * gain_e_per_dn
+    for i in range(u):
+        r = lin[i] // n_cols
+        c = lin[i] - r * n_cols
+        o = max(opt0 + opt_dx * (c - cx) + opt_dy * (r - cy), 0.0)
+        q = gain * o
+        opt[i] = o
+        mean[i] = (q + dark_e) / gain_e_per_dn + bias_dn
+        var = enf2_c * q + dark_e + read_var_e2 + (prnu_sigma * q) ** 2
+        thr[i] = mean[i] + k_sigma * math.sqrt(var / g2 + 1.0 / 12.0)
+    return opt, mean, thr

@@ -145,6 +145,7 @@ def render_spot_windows(sub_xy, sub_w, sigma_px, half_width_px, n_cols, n_rows, 
     spot = np.empty(cap, dtype=np.int64)
     gx = np.empty((n_k, w_max))
     gy = np.empty((n_k, w_max))
+    gx_max = np.empty(n_k)
     n = 0
     for p in range(n_p):
         ca = max(c_lo[p], 0)
@@ -160,7 +161,19 @@ def render_spot_windows(sub_xy, sub_w, sigma_px, half_width_px, n_cols, n_rows, 
             wk = sub_w[p, k]
             for i in range(rb - ra):
                 gy[k, i] *= wk
+        if min_value > 0.0:
+            for k in range(n_k):
+                m = 0.0
+                for j in range(cb - ca):
+                    m = max(m, gx[k, j])
+                gx_max[k] = m
         for i in range(rb - ra):
+            if min_value > 0.0:
+                bound = 0.0  # no pixel of this row can reach min_value: skip it
+                for k in range(n_k):
+                    bound += gy[k, i] * gx_max[k]
+                if bound < min_value:
+                    continue
             base = (ra + i) * n_cols + ca
             for j in range(cb - ca):
                 v = 0.0

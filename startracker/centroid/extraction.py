@@ -5,8 +5,9 @@ Centroiding (paper 002 §3)
 1. Background: the image's level and noise σ, from sigma-clipped statistics of 64×64 blocks (every
    second pixel), fitted by a plane (default), kept per block ("local") or pooled ("global").
 2. Threshold: a pixel belongs to a spot when ``DN > background + k σ``; spots are the 8-connected
-   components (``scipy.ndimage.label``); their pixels are gathered once (no ``center_of_mass`` over
-   the frame) and measured with ``numpy.bincount``.
+   components (``scipy.ndimage.label`` on an image; a union-find over the sparse pixel set for a
+   :class:`~startracker.imaging.SparseFrame`); their pixels are gathered once and measured by the compiled
+   kernels of :mod:`startracker.kernels.centroid_extraction` (no ``center_of_mass`` over the frame).
 3. Centre of mass (§3.1, eqs. 1–3): ``x = Σ x DN' / Σ DN'`` over the component with the background
    subtracted, ``DN' = DN − background``.
 4. Gaussian interpolation (§3.2, Quine 2007, eqs. 4–6): the brightest pixel and its brighter neighbour

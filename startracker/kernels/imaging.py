@@ -67,13 +67,42 @@ def normal_isf(q):
 
 
 @njit(cache=True)
+def _upper_tail_hart(t):
+    """``Q(t)`` for ``t >= 0`` by Hart's rational approximation (West 2005): absolute error < 2e-16 (relative
+    error up to ~1e-8 in the far tail), half the cost of ``erfc``. For pixel fractions of a spot, where only the
+    absolute error matters."""
+    e = math.exp(-0.5 * t * t)
+    if t < 7.07106781186547:
+        n = 3.52624965998911e-02 * t + 0.700383064443688
+        n = n * t + 6.37396220353165
+        n = n * t + 33.912866078383
+        n = n * t + 112.079291497871
+        n = n * t + 221.213596169931
+        n = n * t + 220.206867912376
+        d = 8.83883476483184e-02 * t + 1.75566716318264
+        d = d * t + 16.064177579207
+        d = d * t + 86.7807322029461
+        d = d * t + 296.564248779674
+        d = d * t + 637.333633378831
+        d = d * t + 793.826512519948
+        d = d * t + 440.413735824752
+        return e * n / d
+    b = t + 0.65
+    b = t + 4.0 / b
+    b = t + 3.0 / b
+    b = t + 2.0 / b
+    b = t + 1.0 / b
+    return e / b / 2.506628274631
+
+
+@njit(cache=True)
 def _axis_profile(edge0, n, centre, inv_sigma, out):
     """Fraction of a unit Gaussian (centre, σ) in each of n pixels whose first lower edge is edge0."""
     prev_t = (edge0 - centre) * inv_sigma
-    prev_v = normal_sf(abs(prev_t))
+    prev_v = _upper_tail_hart(abs(prev_t))
     for j in range(n):
         t = (edge0 + j + 1.0 - centre) * inv_sigma
-        v = normal_sf(abs(t))
+        v = _upper_tail_hart(abs(t))
         if prev_t >= 0.0:
             out[j] = prev_v - v  # both edges right of the centre: Q(a) − Q(b)
         elif t <= 0.0:

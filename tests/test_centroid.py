@@ -583,3 +583,112 @@ def test_same_seed_same_detections_across_processes_on_a_fresh_compile_cache(tmp
     with redirect_stdout(buf):
         exec(_DETERMINISM_SCRIPT, {})
     assert outs[0] == outs[1] == buf.getvalue().strip()
+
+
+# ------------------------------------------------------------------------------------- compiled kernels
+def _sparse_set(lin_all, n_px):
+    """A sparse-set index over the given pixels, the way the renderer leaves it (stale entries elsewhere)."""
+    buf = np.random.default_rng(0).integers(-5, len(lin_all) + 5, n_px).astype(np.int32)
+    buf[lin_all] = np.arange(len(lin_all), dtype=np.int32)
+    return buf
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_sparse_components_match_scipy_label(seed):
+    """Components over a sparse pixel set == scipy.ndimage.label (8-connected) of the same pixels, numbered in
+    order of first appearance; pixels outside the set never connect."""
+    from scipy import ndimage
+
+    from startracker.kernels.centroid_extraction import sparse_components
+
+    rng = np.random.default_rng(seed)
+    n_rows, n_cols = 23, 31
+    mask = rng.random((n_rows, n_cols)) < 0.35
+    above = rng.permutation(np.flatnonzero(mask))
+    others = rng.permutation(np.flatnonzero(~mask))[: int(rng.integers(0, (~mask).sum()))]
+    lin = np.concatenate([above, others])[rng.permutation(len(above) + len(others))]
+    buf = _sparse_set(lin, n_rows * n_cols)
+    pos = np.full(len(lin), -1, dtype=np.int64)
+    where = {p: i for i, p in enumerate(lin)}
+    order = np.array(sorted(above, key=lambda p: where[p]), dtype=np.int64)  # above pixels in set order
+    for j, p in enumerate(order):
+        pos[where[p]] = j
+    labels, n = sparse_components(order, n_rows, n_cols, buf, lin, pos)
+    ref, n_ref = ndimage.label(mask, structure=np.ones((3, 3)))
+    assert n == n_ref
+    ref_lab = ref.ravel()[order]
+    pairs = set(zip(labels.tolist(), ref_lab.tolist()))
+    assert len(pairs) == n  # a bijection between the two labellings
+    first = [labels.tolist().index(k) for k in range(n)]
+    assert first == sorted(first)
+
+
+def test_sparse_detections_match_explicit_centre_of_mass():
+    """detect_sparse on a frame given as sparse pixels: area, intensity, centre of mass (eqs. 1–3), peak and the
+    brightest-first order equal an explicit numpy computation over scipy's components; the owner is the source
+    with the largest charge in one of the component's pixels."""
+    from scipy import ndimage
+
+    from startracker.kernels.centroid_extraction import detect_sparse
+
+    rng = np.random.default_rng(3)
+    n_rows, n_cols = 40, 50
+    img = 100.0 + rng.normal(0, 1.0, (n_rows, n_cols))
+    for x0, y0, tot in [(10.3, 12.8, 900.0), (30.7, 8.1, 400.0), (40.2, 30.6, 2500.0), (11.5, 33.4, 150.0)]:
+        img += gaussian_image((n_rows, n_cols), x0, y0, 1.1, tot, 0.0)
+    img = np.rint(img)
+    lin = rng.permutation(n_rows * n_cols).astype(np.int64)
+    buf = _sparse_set(lin, n_rows * n_cols)
+    dn = img.ravel()[lin]
+    bgd = np.full(len(lin), 100.0)
+    thr = np.full(len(lin), 104.0)
+    # entries: every pixel owned by a random one of 7 sources with random charge
+    ent_px = np.arange(len(lin), dtype=np.int64)
+    ent_src = rng.integers(0, 7, len(lin)).astype(np.int64)
+    ent_e = rng.random(len(lin))
+    xy, inten, area, sat, peak, snr, owner = detect_sparse(lin, dn, bgd, thr, 110.0, 4.0, n_rows, n_cols, buf, False,
+                                                           np.nan, 1, ent_px, ent_src, ent_e)
+    mask = img > 104.0
+    lab, n = ndimage.label(mask, structure=np.ones((3, 3)))
+    sig = img - 100.0
+    ids = np.arange(1, n + 1)
+    ref_i = ndimage.sum(sig, lab, ids)
+    ref_com = np.array(ndimage.center_of_mass(np.where(mask, sig, 0.0), lab, ids))[:, ::-1]
+    ref_a = ndimage.sum(mask, lab, ids)
+    ref_pk = ndimage.maximum(sig, lab, ids)
+    o = np.argsort(-ref_i, kind="stable")
+    assert len(xy) == n
+    np.testing.assert_allclose(inten, ref_i[o], rtol=1e-12)
+    np.testing.assert_allclose(xy, ref_com[o], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(area, ref_a[o])
+    np.testing.assert_allclose(peak, ref_pk[o])
+    np.testing.assert_array_equal(sat, ndimage.maximum(img, lab, ids)[o] >= 110.0)
+    np.testing.assert_allclose(snr, ref_i[o] / (1.0 * np.sqrt(ref_a[o])))
+    e_img = np.zeros(n_rows * n_cols)
+    e_img[lin] = ent_e
+    s_img = np.zeros(n_rows * n_cols, dtype=np.int64)
+    s_img[lin] = ent_src
+    for k, comp in enumerate(ids[o]):
+        px = np.flatnonzero(lab.ravel() == comp)
+        assert owner[k] == s_img[px[np.argmax(e_img[px])]]
+
+
+def test_sparse_gaussian_interpolation_matches_the_full_frame_path():
+    """The compiled sparse path and extract_centroids (shared measuring kernels, scipy components) give the same
+    Gaussian-interpolated centroids on the same noiseless frame; both recover the spot centres."""
+    from startracker.kernels.centroid_extraction import detect_sparse
+
+    n_rows, n_cols = 64, 64
+    centres = [(20.3, 22.8), (44.7, 15.1), (40.2, 47.6)]
+    img = sum(gaussian_image((n_rows, n_cols), x0, y0, 1.2, 3000.0, 0.0) for x0, y0 in centres) + 100.0
+    full = extract_centroids(img, 5.0, "gaussian", psf_sigma_px=1.2, background="global")
+    lin = np.arange(n_rows * n_cols, dtype=np.int64)
+    buf = _sparse_set(lin, n_rows * n_cols)
+    lvl = full.background_dn
+    thr = lvl + 5.0 * full.noise_dn
+    xy, *_ = detect_sparse(lin, img.ravel(), np.full(lin.size, lvl), np.full(lin.size, thr), 1e9, 5.0, n_rows, n_cols,
+                           buf, True, 1.2, 1, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
+    np.testing.assert_allclose(xy, full.xy, atol=1e-12)
+    truth = np.array(centres)
+    for p in xy:
+        assert np.min(np.hypot(*(truth - p).T)) < 1e-3

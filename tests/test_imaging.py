@@ -297,3 +297,139 @@ def test_bad_render_arguments():
         render_sparse(sc, SensorModel(), np.random.default_rng(0), k_sigma=-1.0)
     with pytest.raises(ValueError):
         SensorModel.preset("hubble")
+
+
+# ------------------------------------------------------------------------------------- compiled kernels
+def _reference_windows(sub_xy, sub_w, sigma, n_cols, n_rows):
+    """Independent truth: every sub-spot integrated over every pixel of the detector with scipy's ndtr."""
+    from scipy.special import ndtr
+
+    img = np.zeros((n_rows, n_cols))
+    e_c = np.arange(n_cols + 1) - 0.5
+    e_r = np.arange(n_rows + 1) - 0.5
+    for p in range(sub_xy.shape[0]):
+        for k in range(sub_xy.shape[1]):
+            gx = np.diff(ndtr((e_c - sub_xy[p, k, 0]) / sigma[p]))
+            gy = np.diff(ndtr((e_r - sub_xy[p, k, 1]) / sigma[p]))
+            img += sub_w[p, k] * np.outer(gy, gx)
+    return img
+
+
+def test_window_kernel_integrates_the_gaussian_over_pixels():
+    """render_spot_windows == the pixel-integrated Gaussians summed over sub-spots, spots across the edges included."""
+    from startracker.kernels.imaging import render_spot_windows
+
+    rng = np.random.default_rng(5)
+    n_cols, n_rows = 40, 30
+    sub_xy = np.stack([rng.uniform(-3, n_cols + 2, (12, 3)), rng.uniform(-3, n_rows + 2, (12, 3))], axis=2)
+    sub_w = rng.uniform(10, 1000, (12, 3))
+    sigma = rng.uniform(0.5, 2.0, 12)
+    hw = np.full(12, 12, dtype=np.int64)  # windows reaching 12 px beyond the spots: the tails are < 1e-9
+    lin, val, spot = render_spot_windows(sub_xy, sub_w, sigma, hw, n_cols, n_rows, 0.0)
+    assert np.all((lin >= 0) & (lin < n_cols * n_rows))
+    img = np.bincount(lin, val, minlength=n_cols * n_rows).reshape(n_rows, n_cols)
+    ref = _reference_windows(sub_xy, sub_w, sigma, n_cols, n_rows)
+    np.testing.assert_allclose(img, ref, rtol=1e-9, atol=1e-6)
+    # per spot: every pixel at most once, the spot's own light only
+    for p in range(12):
+        assert len(np.unique(lin[spot == p])) == np.count_nonzero(spot == p)
+    # min_value drops exactly the pixels below it
+    lin2, val2, _ = render_spot_windows(sub_xy, sub_w, sigma, hw, n_cols, n_rows, 5.0)
+    assert np.all(val2 >= 5.0)
+    assert len(lin2) == np.count_nonzero(val >= 5.0)
+
+
+def test_sparse_windows_carry_the_expected_charge_of_the_full_frame():
+    """The sparse frame's star entries, summed per pixel, equal render_expected on the same pixels (smeared,
+    multi-exposure spots on a CMOS detector, where the spots are not randomised)."""
+    model = quiet(SensorModel.preset("paper000_cmos"))
+    plan = ExposurePlan(3, 2e-3, frame_period_s=0.1)
+    sc = scene_from_tracks(SMALL, plan, [[40.3, 50.7], [90.2, 80.9], [2.0, 120.4]], [4.0, 5.5, 6.0],
+                           [[0.0, 0.0], [600.0, 200.0], [-300.0, 100.0]])
+    sf = render_sparse(sc, model, np.random.default_rng(1), false_objects=FalseObjects.none(), draw_crossings=False)
+    star = sf.sources.kind[sf.entry_source] == KIND_STAR
+    per_px = np.bincount(sf.entry_pixel[star], sf.entry_e[star], minlength=len(sf.lin))
+    expected = render_expected(sc, model, include_background=False).ravel()[sf.lin]
+    np.testing.assert_allclose(per_px, expected, rtol=1e-9, atol=1e-9)
+    # one still spot per star: every pixel left out holds less light than 0.3 σ of the background noise
+    sc = scene_from_tracks(SMALL, ExposurePlan(1, 2e-3), [[40.3, 50.7], [90.2, 80.9]], [4.0, 5.5])
+    sf = render_sparse(sc, model, np.random.default_rng(1), false_objects=FalseObjects.none(), draw_crossings=False)
+    full = render_expected(sc, model, include_background=False).ravel()
+    bg = background_field(sc, model)
+    out = np.ones(full.size, dtype=bool)
+    out[sf.lin] = False
+    assert 0 < full[out].max() < 0.3 * np.sqrt(float(bg.var_e(bg.cx, bg.cy)))
+
+
+def test_normal_tail_inverse_matches_scipy():
+    from scipy.special import ndtri
+
+    from startracker.kernels.imaging import normal_isf, normal_sf
+
+    for q in [1e-300, 1e-200, 1e-30, 2.9e-7, 1e-3, 0.02, 0.3, 0.5, 0.7, 0.99]:
+        t = normal_isf(q)
+        assert t == pytest.approx(-ndtri(q), rel=1e-12, abs=1e-12)
+        assert normal_sf(t) == pytest.approx(q, rel=1e-12)
+
+
+def test_false_pixel_values_follow_the_gaussian_tail():
+    """Drawn background crossings: all above the threshold, their mean count and their DN distribution those of
+    Gaussian pixels (flat background), from the kernels' cells and tail sampling."""
+    from scipy.special import ndtr
+
+    cam = Camera(resolution=(512, 512))
+    model = quiet(SensorModel.preset("paper000_cmos"), read_noise_e=20.0)
+    sc = scene_from_tracks(cam, ExposurePlan(1, 0.02), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2)))
+    bg = background_field(sc, model)
+    from startracker.imaging import draw_false_pixels
+
+    k = 3.0  # low threshold: many crossings to test
+    rng = np.random.default_rng(2)
+    draws = [draw_false_pixels(bg, k, 512, 512, model, rng) for _ in range(20)]
+    dn = np.concatenate([d[1] for d in draws])
+    thr = float(bg.threshold_dn(bg.cx, bg.cy, k))
+    assert np.all(dn > thr)
+    mu = float(bg.mean_e(bg.cx, bg.cy)) / model.gain_e_per_dn + model.bias_dn
+    sd = np.sqrt(float(bg.var_e(bg.cx, bg.cy))) / model.gain_e_per_dn
+    levels = np.arange(np.floor(thr) + 1, np.floor(thr) + 6)
+    p_level = ndtr(-(levels - 0.5 - mu) / sd) - ndtr(-(levels + 0.5 - mu) / sd)  # P(DN = level)
+    n_px = 20 * 512 * 512
+    counts = np.array([np.count_nonzero(dn == v) for v in levels])
+    assert np.all(np.abs(counts - n_px * p_level) < 4 * np.sqrt(n_px * p_level) + 1), (counts, n_px * p_level)
+    p_cross = ndtr(-(np.floor(thr) + 0.5 - mu) / sd)
+    assert len(dn) == pytest.approx(n_px * p_cross, abs=4 * np.sqrt(n_px * p_cross))
+    assert all(np.all((d[0] >= 0) & (d[0] < 512 * 512)) for d in draws)
+
+
+def test_pixel_path_is_deterministic_across_processes_on_a_fresh_numba_cache(tmp_path):
+    """Same seed, same detections, bit for bit, in two processes that each compile the kernels afresh."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np\n"
+        "from startracker.imaging import SensorModel, render_sparse\n"
+        "from startracker.centroid import detections_from_sparse\n"
+        "from startracker.optics import camera_preset\n"
+        "from startracker.scene import ExposurePlan, scene_from_tracks\n"
+        "cam = camera_preset('paper000')\n"
+        "r = np.random.default_rng(4)\n"
+        "xy = r.uniform(50, 2000, (25, 2)); v = r.uniform(3, 7, 25); vel = r.uniform(-800, 800, (25, 2))\n"
+        "sc = scene_from_tracks(cam, ExposurePlan(5, 1e-3, frame_period_s=0.1), xy, v, vel)\n"
+        "out = []\n"
+        "for method in ('com', 'gaussian'):\n"
+        "    d = detections_from_sparse(render_sparse(sc, SensorModel.preset('paper000'), np.random.default_rng(0)),"
+        " method)\n"
+        "    out.append(np.concatenate([d.xy.ravel(), d.intensity, d.area, d.truth_star, d.truth_kind]))\n"
+        "print(np.concatenate(out).tobytes().hex())\n"
+    )
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    outs = []
+    for i in range(2):
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / f"cache{i}"), PYTHONPATH=root)
+        res = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, capture_output=True, text=True,
+                             timeout=600)
+        assert res.returncode == 0, res.stderr
+        outs.append(res.stdout.strip())
+    assert len(outs[0]) > 1000 and outs[0] == outs[1]

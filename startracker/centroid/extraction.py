@@ -5,8 +5,9 @@ Centroiding (paper 002 §3)
 1. Background: the image's level and noise σ, from sigma-clipped statistics of 64×64 blocks (every
    second pixel), fitted by a plane (default), kept per block ("local") or pooled ("global").
 2. Threshold: a pixel belongs to a spot when ``DN > background + k σ``; spots are the 8-connected
-   components (``scipy.ndimage.label``); their pixels are gathered once (no ``center_of_mass`` over
-   the frame) and measured with ``numpy.bincount``.
+   components (``scipy.ndimage.label`` on an image; a union-find over the sparse pixel set for a
+   :class:`~startracker.imaging.SparseFrame`); their pixels are gathered once and measured by the compiled
+   kernels of :mod:`startracker.kernels.centroid_extraction` (no ``center_of_mass`` over the frame).
 3. Centre of mass (§3.1, eqs. 1–3): ``x = Σ x DN' / Σ DN'`` over the component with the background
    subtracted, ``DN' = DN − background``.
 4. Gaussian interpolation (§3.2, Quine 2007, eqs. 4–6): the brightest pixel and its brighter neighbour
@@ -28,11 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.special import ndtr
 
-from startracker.imaging import KIND_NOISE, KIND_STAR
+from startracker.imaging import KIND_NOISE, KIND_STAR, SparseFrame
+from startracker.kernels.centroid_extraction import detect_sparse, gaussian_refine, measure_components, rank_components
 
 __all__ = [
     "Centroids",
@@ -246,90 +245,25 @@ def estimate_background(image, background: str = "plane", block_px: int = 64):
 
 
 # ------------------------------------------------------------------------------------------ measuring
-def _pixel_g(u, a, b, sigma):
-    """Fraction of a unit Gaussian centred at u falling in [a, b] (paper 002 eq. 5)."""
-    return ndtr((b - u) / sigma) - ndtr((a - u) / sigma)
-
-
-def _gauss_axis_offset(i_minus, i_0, i_plus, sigma):
-    """Sub-pixel offset along one axis from the brightest pixel and its neighbours (paper 002 §3.2).
-
-    Returns the offset in [−0.5, 0.5] px, NaN where it cannot be formed (non-positive centre).
-    """
-    i_minus = np.where(np.isfinite(i_minus), i_minus, 0.0)
-    i_plus = np.where(np.isfinite(i_plus), i_plus, 0.0)
-    side = np.where(i_plus >= i_minus, 1.0, -1.0)
-    i_n = np.maximum(i_plus, i_minus)
-    ok = i_0 > 0
-    rho = np.clip(np.where(ok, i_n / np.where(ok, i_0, 1.0), 0.0), 0.0, 1.0)
-    lo = np.zeros_like(rho)
-    hi = np.full_like(rho, 0.5)
-    for _ in range(26):
-        mid = 0.5 * (lo + hi)
-        f = _pixel_g(mid, 0.5, 1.5, sigma) - rho * _pixel_g(mid, -0.5, 0.5, sigma)
-        pos = f > 0
-        hi = np.where(pos, mid, hi)
-        lo = np.where(pos, lo, mid)
-    return np.where(ok, side * 0.5 * (lo + hi), np.nan)
-
-
-def _sigma_from_three(i_minus, i_0, i_plus, default):
-    """PSF σ from the log-parabola through three pixels, minus pixel integration (1/12 px²)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        curv = -(np.log(i_minus) - 2 * np.log(i_0) + np.log(i_plus))
-        s2 = 1.0 / curv - 1.0 / 12.0
-    good = (i_minus > 0) & (i_plus > 0) & (i_0 > 0) & np.isfinite(s2) & (s2 > 0.05)
-    return np.where(good, np.sqrt(np.clip(np.where(good, s2, 1.0), 0.05, 25.0)), default)
-
-
 def _measure(labels, n_comp, rows, cols, signal, sat_px, noise_px, method, lookup, psf_sigma_px, min_area_px):
-    """Measure components from their pixels.
+    """Measure components from their pixels (the full-frame path; the sparse path runs in one kernel).
 
     labels (A,) in [0, n_comp); rows, cols (A,); signal (A,) DN above background; sat_px (A,) bool;
     noise_px (A,) background σ (DN); lookup(rows, cols) -> background-subtracted DN (NaN if unknown).
-    Returns (component ids kept, brightest first), xy, intensity, area, saturated, peak, snr.
+    Returns xy, intensity, area, saturated, peak, snr of the kept components, brightest first.
     """
-    area = np.bincount(labels, minlength=n_comp)
-    inten = np.bincount(labels, signal, minlength=n_comp)
-    sx = np.bincount(labels, signal * cols, minlength=n_comp)
-    sy = np.bincount(labels, signal * rows, minlength=n_comp)
-    sat = np.bincount(labels, sat_px, minlength=n_comp) > 0
-    noise = np.bincount(labels, noise_px, minlength=n_comp) / np.maximum(area, 1)
-    safe = np.where(inten > 0, inten, 1.0)
-    x = sx / safe
-    y = sy / safe
-    # brightest pixel of each component
-    peak = np.full(n_comp, -np.inf)
-    np.maximum.at(peak, labels, signal)
-    cand = np.flatnonzero(signal >= peak[labels])
-    pk_of = np.full(n_comp, -1, dtype=np.int64)
-    pk_of[labels[cand]] = cand
-    pk = pk_of[pk_of >= 0]
-    comp_of_pk = labels[pk]
-    if method == "gaussian" and len(pk):
-        r0 = rows[pk]
-        c0 = cols[pk]
-        i0 = signal[pk]
-        il = lookup(r0, c0 - 1)
-        ir = lookup(r0, c0 + 1)
-        iu = lookup(r0 - 1, c0)
-        idn = lookup(r0 + 1, c0)
-        if psf_sigma_px is None:
-            sxg = _sigma_from_three(il, i0, ir, 1.0)
-            syg = _sigma_from_three(iu, i0, idn, 1.0)
-        else:
-            sxg = syg = psf_sigma_px
-        dx = _gauss_axis_offset(il, i0, ir, sxg)
-        dy = _gauss_axis_offset(iu, i0, idn, syg)
-        use = ~sat[comp_of_pk]
-        gx = np.where(use & np.isfinite(dx), c0 + dx, x[comp_of_pk])
-        gy = np.where(use & np.isfinite(dy), r0 + dy, y[comp_of_pk])
-        x[comp_of_pk] = gx
-        y[comp_of_pk] = gy
-    keep = np.flatnonzero((area >= min_area_px) & (inten > 0))
-    keep = keep[np.argsort(-inten[keep], kind="stable")]
-    snr = inten[keep] / (np.maximum(noise[keep], 1e-9) * np.sqrt(area[keep]))
-    return keep, np.column_stack([x[keep], y[keep]]), inten[keep], area[keep], sat[keep], peak[keep], snr
+    rows = rows.astype(np.float64)
+    cols = cols.astype(np.float64)
+    x, y, inten, area, sat, noise, peak, pk = measure_components(labels.astype(np.int64), int(n_comp), rows, cols,
+                                                                 signal, sat_px.astype(bool), noise_px.astype(np.float64))
+    if method == "gaussian" and n_comp:
+        r0 = rows[pk].astype(np.int64)
+        c0 = cols[pk].astype(np.int64)
+        gaussian_refine(x, y, rows[pk], cols[pk], signal[pk], lookup(r0, c0 - 1), lookup(r0, c0 + 1),
+                        lookup(r0 - 1, c0), lookup(r0 + 1, c0), sat,
+                        float("nan") if psf_sigma_px is None else float(psf_sigma_px))
+    keep, snr = rank_components(inten, area, noise, int(min_area_px))
+    return np.column_stack([x[keep], y[keep]]), inten[keep], area[keep], sat[keep], peak[keep], snr
 
 
 def extract_centroids(
@@ -415,71 +349,48 @@ def extract_centroids(
         ccl = np.clip(c, 0, n_cols - 1)
         return np.where(inside, img[rc, ccl] - level(rc, ccl), np.nan)
 
-    _, xy, inten, area, sat, peak, snr = _measure(
+    xy, inten, area, sat, peak, snr = _measure(
         lab, n, rows, cols, signal, sat_px, sigma(rows, cols), method, lookup, psf_sigma_px, min_area_px
     )
     return Centroids(xy, inten, area.astype(np.int64), sat, peak, snr, bg0, s0)
 
 
 # ------------------------------------------------------------------------------------------ pixel fidelity
-def detections_from_sparse(sf, method: str = "com", *, min_area_px: int = 1, psf_sigma_px: float | None = None) -> Centroids:
-    """Components and centroids of a :class:`startracker.imaging.SparseFrame`, with truth labels."""
-    check_method(method)
-    min_area_px = check_min_area(min_area_px)
-    above = np.flatnonzero(sf.dn > sf.threshold_dn)
+def detections_from_sparse(sf, method: str = "com", *, min_area_px: int = 1, psf_sigma_px: float | None = None,
+                           validate: bool = True) -> Centroids:
+    """Components and centroids of a :class:`startracker.imaging.SparseFrame`, with truth labels.
+
+    Parameters
+    ----------
+    sf : SparseFrame
+    method : {"com", "gaussian"}
+    min_area_px : int
+    psf_sigma_px : float, optional
+        As in :func:`extract_centroids`.
+    validate : bool
+        Check the arguments (False: the caller has checked them, as the per-frame path does).
+
+    Returns
+    -------
+    Centroids
+        Brightest first, with ``truth_star``, ``truth_exposure``, ``truth_kind``, ``truth_xy``.
+    """
+    if validate:
+        if not isinstance(sf, SparseFrame):
+            raise TypeError(f"sf must be a startracker.imaging.SparseFrame, got {type(sf).__name__}")
+        check_method(method)
+        min_area_px = check_min_area(min_area_px)
+        psf_sigma_px = check_psf_sigma(psf_sigma_px)
+    n_rows, n_cols = sf.shape
+    xy, inten, area, sat, peak, snr, o = detect_sparse(
+        sf.lin, sf.dn.astype(np.float64), sf.background_dn, sf.threshold_dn, float(sf.saturation_dn),
+        float(sf.k_sigma), int(n_rows), int(n_cols), sf.buffer(), method == "gaussian",
+        float("nan") if psf_sigma_px is None else float(psf_sigma_px), int(min_area_px), sf.entry_pixel,
+        sf.entry_source, sf.entry_e)
     bg_c = sf.background_dn_centre
     sig_c = sf.noise_dn_centre
-    if len(above) == 0:
+    if len(o) == 0:
         return Centroids.empty(bg_c, sig_c, with_truth=True)
-    a = len(above)
-    n_rows, n_cols = sf.shape
-    lin_a = sf.lin[above]
-    r, c = np.divmod(lin_a, n_cols)
-    pos = np.full(len(sf.lin), -1, dtype=np.int64)
-    pos[above] = np.arange(a)
-    src_i, dst_i = [], []
-    for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):
-        inside = np.flatnonzero((r + dr < n_rows) & (c + dc >= 0) & (c + dc < n_cols))
-        nb = sf.linear_ids(lin_a[inside] + (dr * n_cols + dc))
-        j = np.where(nb >= 0, pos[np.maximum(nb, 0)], -1)
-        ok = j >= 0
-        src_i.append(inside[ok])
-        dst_i.append(j[ok])
-    si = np.concatenate(src_i)
-    di = np.concatenate(dst_i)
-    if len(si):
-        graph = coo_matrix((np.ones(len(si), dtype=np.int8), (si, di)), shape=(a, a)).tocsr()
-        n_comp, lab = connected_components(graph, directed=False)
-    else:
-        n_comp, lab = a, np.arange(a)
-    lab = lab.astype(np.int64)
-    dn = sf.dn[above].astype(np.float64)
-    bgp = sf.background_dn[above]
-    signal = dn - bgp
-    sat_px = dn >= sf.saturation_dn
-    noise_px = (sf.threshold_dn[above] - bgp) / sf.k_sigma
-
-    def lookup(rr, cc):
-        ids = sf.pixel_ids(rr, cc)
-        okk = ids >= 0
-        ii = np.maximum(ids, 0)
-        return np.where(okk, sf.dn[ii] - sf.background_dn[ii], np.nan)
-
-    keep, xy, inten, area, sat, peak, snr = _measure(
-        lab, n_comp, r, c, signal, sat_px, noise_px, method, lookup, psf_sigma_px, min_area_px
-    )
-    # truth: the source contributing most expected charge at any pixel of the component
-    ep = pos[sf.entry_pixel]
-    sel = ep >= 0
-    comp = lab[ep[sel]]
-    w = sf.entry_e[sel]
-    src = sf.entry_source[sel]
-    best = np.full(n_comp, -np.inf)
-    np.maximum.at(best, comp, w)
-    is_best = w >= best[comp]
-    owner = np.full(n_comp, -1, dtype=np.int64)
-    owner[comp[is_best]] = src[is_best]
-    o = owner[keep]
     srcs = sf.sources
     has = o >= 0
     oo = np.maximum(o, 0)
@@ -487,7 +398,4 @@ def detections_from_sparse(sf, method: str = "com", *, min_area_px: int = 1, psf
     t_star = np.where(has, srcs.star[oo], -1)
     t_exp = np.where(has, srcs.exposure[oo], -1)
     t_xy = np.where(has[:, None], srcs.xy[oo], np.nan)
-    return Centroids(xy, inten, area.astype(np.int64), sat, peak, snr, bg_c, sig_c, t_star.astype(np.int64),
-                     t_exp.astype(np.int64), t_kind.astype(np.int64), t_xy)
-
-
+    return Centroids(xy, inten, area, sat, peak, snr, bg_c, sig_c, t_star, t_exp, t_kind, t_xy)

@@ -71,7 +71,6 @@ from startracker.imaging.spots import (
     Spots,
     frame_spots,
     randomize_intensified,
-    render_bucketed,
     render_windows,
     window_half_widths,
 )
@@ -98,7 +97,6 @@ __all__ = [
     "frame_spots",
     "randomize_intensified",
     "window_half_widths",
-    "render_bucketed",
     "render_windows",
     "SparseFrame",
     "render_frame",

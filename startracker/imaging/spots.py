@@ -13,6 +13,7 @@ from scipy.special import ndtr
 
 from startracker.imaging.background import COSMIC_SIGMA_PX, BackgroundField, FalseObjects
 from startracker.imaging.detector import SensorModel
+from startracker.kernels.imaging import render_spot_windows, shift_intensified_spots, spots_from_paths
 from startracker.scene import Scene
 
 __all__ = [
@@ -27,7 +28,6 @@ __all__ = [
     "frame_spots",
     "randomize_intensified",
     "window_half_widths",
-    "render_bucketed",
     "render_windows",
 ]
 
@@ -81,43 +81,14 @@ class Spots:
     direct: bool  # charge deposited directly (cosmic rays) rather than light
 
 
-def _resample_path(path: np.ndarray, n_seg: int) -> np.ndarray:
-    """Positions at n_seg+1 instants evenly spaced in time along paths sampled evenly in time.
-
-    path (E, S, 2) -> (E, n_seg+1, 2), linear between samples.
-    """
-    s = path.shape[1]
-    f = np.linspace(0.0, s - 1.0, n_seg + 1)
-    i0 = np.minimum(np.floor(f).astype(int), s - 2)
-    w = (f - i0)[None, :, None]
-    return path[:, i0] * (1 - w) + path[:, i0 + 1] * w
-
-
-def _segments_to_spots(knots, total, sigma, source, direct, max_seg_px):
-    """knots (E, n_seg+1, 2) of paths, total signal (E,), sigma (E,) -> Spots with K sub-spots per segment."""
-    e_n, n1, _ = knots.shape
-    n_seg = n1 - 1
-    a = knots[:, :-1].reshape(-1, 2)
-    b = knots[:, 1:].reshape(-1, 2)
-    d = b - a
-    length = np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2)
-    sig = np.repeat(sigma, n_seg)
-    k = int(max(1, math.ceil(float(np.max(length / (0.5 * sig), initial=0.0)))))
-    frac = (np.arange(k) + 0.5) / k
-    sub = a[:, None, :] + d[:, None, :] * frac[None, :, None]
-    w = np.repeat(total / (n_seg * k), n_seg)[:, None] * np.ones((1, k))
-    along = np.where(length[:, None] > 1e-12, d / np.maximum(length, 1e-12)[:, None], np.array([1.0, 0.0]))
-    return Spots(sub, w, sig, np.repeat(source, n_seg), along, length, direct)
-
-
 def _paths_to_spots(paths, total, sigma, source, direct):
-    """Split polylines (E, S, 2) sampled evenly in time into segments no longer than 4σ."""
+    """Split polylines (E, S, 2) sampled evenly in time into segments no longer than 4σ, sub-spots ≤ σ/2 apart."""
     if len(paths) == 0:
         return None
-    dp = np.diff(paths, axis=1)
-    seg_len = np.sqrt(dp[..., 0] ** 2 + dp[..., 1] ** 2).sum(axis=1)
-    n_seg = int(max(1, math.ceil(float(np.max(seg_len / (4.0 * sigma))))))
-    return _segments_to_spots(_resample_path(paths, n_seg), total, sigma, source, direct, 4.0 * sigma)
+    sub, w, sig, path, along, length = spots_from_paths(np.ascontiguousarray(paths, dtype=np.float64),
+                                                        np.ascontiguousarray(total, dtype=np.float64),
+                                                        np.ascontiguousarray(sigma, dtype=np.float64))
+    return Spots(sub, w, sig, source[path], along, length, direct)
 
 
 def _on_detector(paths, margin, w, h):
@@ -198,24 +169,17 @@ def randomize_intensified(spots: Spots, model: SensorModel, rng: np.random.Gener
     Turns the expected photoelectrons of each segment into its random charge (e⁻) and shifts the segment by
     the scatter of its photoelectrons' positions.
     """
-    s = spots.sub_w.sum(axis=1)
-    n_pe = rng.poisson(s)
+    n_pe = rng.poisson(spots.sub_w.sum(axis=1))
     g = model.intensifier_gain
     k = model.gamma_shape_per_pe
     if math.isinf(k):
-        charge = g * n_pe
+        charge = g * n_pe.astype(np.float64)
     else:
         charge = rng.gamma(np.maximum(k * n_pe, 1e-300), g / k) * (n_pe > 0)
-    f2 = model.excess_noise_factor**2
-    n_eff = np.maximum(n_pe, 1)
-    so2 = model.optics_sigma_px**2
-    sd_cross = np.sqrt(f2 * so2 / n_eff)
-    sd_along = np.sqrt(f2 * (so2 + spots.length**2 / 12.0) / n_eff)
-    z = rng.standard_normal((len(s), 2))
-    shift = spots.along * (z[:, :1] * sd_along[:, None]) + np.stack([-spots.along[:, 1], spots.along[:, 0]], 1) * (z[:, 1:] * sd_cross[:, None])
-    spots.sub_xy = spots.sub_xy + shift[:, None, :]
-    k_sub = spots.sub_w.shape[1]
-    spots.sub_w = np.repeat((charge / k_sub)[:, None], k_sub, axis=1)
+    z = rng.standard_normal((len(n_pe), 2))
+    spots.sub_xy, spots.sub_w = shift_intensified_spots(spots.sub_xy, spots.along, spots.length, n_pe.astype(np.float64),
+                                                        charge, z, float(model.excess_noise_factor),
+                                                        float(model.optics_sigma_px))
 
 
 def window_half_widths(spots: Spots, bg: "BackgroundField", e_per_unit: float, floor_frac: float) -> np.ndarray:
@@ -227,26 +191,18 @@ def window_half_widths(spots: Spots, bg: "BackgroundField", e_per_unit: float, f
     return np.ceil(np.maximum(r, 2.0 * spots.sigma)).astype(np.int64) + 1
 
 
-def render_bucketed(spots: Spots, hw: np.ndarray, n_cols: int, n_rows: int, min_value: float = 0.0):
-    """:func:`render_windows` for groups of spots sharing a half width (a few groups per frame)."""
-    out_l, out_v, out_s = [], [], []
-    for h in np.unique(hw):
-        sel = np.flatnonzero(hw == h)
-        sub = Spots(spots.sub_xy[sel], spots.sub_w[sel], spots.sigma[sel], spots.source[sel], spots.along[sel],
-                     spots.length[sel], spots.direct)
-        lin, val, src = render_windows(sub, int(h), n_cols, n_rows, min_value)
-        out_l.append(lin)
-        out_v.append(val)
-        out_s.append(src)
-    if not out_l:
-        return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0, dtype=np.int64)
-    return np.concatenate(out_l), np.concatenate(out_v), np.concatenate(out_s)
-
-
-def render_windows(spots: Spots, hw: int, n_cols: int, n_rows: int, min_value: float = 0.0):
+def render_windows(spots: Spots, hw, n_cols: int, n_rows: int, min_value: float = 0.0):
     """Pixel-integrated Gaussian sub-spots summed into one window per spot.
 
-    Window pixels whose expected signal is below ``min_value`` are dropped (sparse path).
+    Parameters
+    ----------
+    spots : Spots
+    hw : int or ndarray of int, shape (P,)
+        Window half width beyond the extent of each spot's sub-spots, px.
+    n_cols, n_rows : int
+        Detector size, px.
+    min_value : float
+        Window pixels whose expected signal is below it are dropped (sparse path).
 
     Returns
     -------
@@ -256,30 +212,10 @@ def render_windows(spots: Spots, hw: int, n_cols: int, n_rows: int, min_value: f
         Expected signal there (units of ``sub_w``).
     source : ndarray of int, shape (E,)
     """
-    x = spots.sub_xy[..., 0]
-    y = spots.sub_xy[..., 1]
-    c_lo = np.rint(x.min(axis=1)).astype(np.int64) - hw
-    c_hi = np.rint(x.max(axis=1)).astype(np.int64) + hw
-    r_lo = np.rint(y.min(axis=1)).astype(np.int64) - hw
-    r_hi = np.rint(y.max(axis=1)).astype(np.int64) + hw
-    wc = int((c_hi - c_lo).max()) + 1
-    wr = int((r_hi - r_lo).max()) + 1
-    inv_s = (1.0 / spots.sigma)[:, None, None]
-    ec = (c_lo[:, None] - 0.5 + np.arange(wc + 1))[:, None, :]
-    er = (r_lo[:, None] - 0.5 + np.arange(wr + 1))[:, None, :]
-    gx = np.diff(ndtr((ec - x[:, :, None]) * inv_s), axis=2)  # (P, K, Wc)
-    gy = np.diff(ndtr((er - y[:, :, None]) * inv_s), axis=2)  # (P, K, Wr)
-    gy *= spots.sub_w[:, :, None]
-    val = np.matmul(gy.transpose(0, 2, 1), gx)  # (P, Wr, Wc)
-    rows = r_lo[:, None] + np.arange(wr)
-    cols = c_lo[:, None] + np.arange(wc)
-    ok = ((rows >= 0) & (rows < n_rows))[:, :, None] & ((cols >= 0) & (cols < n_cols))[:, None, :]
-    if min_value > 0:
-        ok &= val >= min_value
-    nz = np.flatnonzero(ok)
-    p, rem = np.divmod(nz, wr * wc)
-    r, c = np.divmod(rem, wc)
-    lin = (r_lo[p] + r) * n_cols + (c_lo[p] + c)
-    return lin, val.reshape(-1)[nz], spots.source[p]
-
-
+    n_p = len(spots.sigma)
+    hw_a = np.broadcast_to(np.asarray(hw, dtype=np.int64), (n_p,)).copy()
+    lin, val, p = render_spot_windows(np.ascontiguousarray(spots.sub_xy, dtype=np.float64),
+                                      np.ascontiguousarray(spots.sub_w, dtype=np.float64),
+                                      np.ascontiguousarray(spots.sigma, dtype=np.float64), hw_a, int(n_cols),
+                                      int(n_rows), float(min_value))
+    return lin, val, spots.source[p]

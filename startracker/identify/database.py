@@ -19,6 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from startracker.catalog import StarCatalog, select_navigation_stars
+from startracker.kernels.identify import GRID_CELLS, build_sky_grid
 from startracker.identify.pairs import StarPairCatalog, build_pair_catalog
 from startracker.identify.pattern_string import PatternCatalog, build_pattern_catalog
 from startracker.optics import Camera
@@ -55,6 +56,11 @@ class StarDatabase:
         Wall-clock build time.
     options : dict
         The build options.
+    grid_start, grid_stars : ndarray of int64
+        Sky grid of the navigation stars (:func:`startracker.kernels.identify.build_sky_grid`), the
+        compiled kernels' nearest-star index.
+    grid_cells : int
+        Cells per axis of the sky grid.
     """
 
     camera: Camera
@@ -68,6 +74,9 @@ class StarDatabase:
     density_eff_per_sr: float
     build_time_s: float
     options: dict
+    grid_start: np.ndarray
+    grid_stars: np.ndarray
+    grid_cells: int = GRID_CELLS
 
     @property
     def n_stars(self) -> int:
@@ -81,6 +90,7 @@ class StarDatabase:
         total += self.pairs.nbytes + (self.ref_pairs.nbytes if self.ref_pairs is not None else 0)
         total += self.patterns.nbytes
         total += self.tree.data.nbytes + self.tree.indices.nbytes
+        total += self.grid_start.nbytes + self.grid_stars.nbytes
         return int(total)
 
     @property
@@ -207,6 +217,7 @@ def build_database(
         guide_mask = np.isin(nav.hip, kept.hip)
     patterns = build_pattern_catalog(pairs, guide_mask, theta_max)
     clumping, dens = _density_moments(tree, len(nav), max(camera.half_fov_rad))
+    grid_start, grid_stars = build_sky_grid(nav.vectors)
     db = StarDatabase(
         camera=camera,
         nav=nav,
@@ -219,6 +230,8 @@ def build_database(
         density_eff_per_sr=dens,
         build_time_s=time.perf_counter() - t0,
         options=options,
+        grid_start=grid_start,
+        grid_stars=grid_stars,
     )
     if cache:
         _CACHE.setdefault(catalog, {})[key] = db

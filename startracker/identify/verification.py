@@ -37,9 +37,9 @@ import numpy as np
 
 from startracker.identify.frame import Frame
 
-_MAX_ROUNDS = 8
-_STABLE_FIT = 10  # matches above which a refit that only adds matches ends the refinement
-_MISFIT_P = 1e-3  # near misses less likely than this under a correct attitude reject it
+MAX_ROUNDS = 8  # refinement rounds of the verification
+STABLE_FIT = 10  # matches above which a refit that only adds matches ends the refinement
+MISFIT_P = 1e-3  # near misses less likely than this under a correct attitude reject it
 
 __all__ = ["Match", "fast_rotation", "triangle_false_rate", "required_matches", "verify", "match_detections", "select_matches", "best_of"]
 
@@ -256,7 +256,7 @@ def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, r
     # Refit on every match and match again until the matches stop changing: the attitude of a thin
     # triad can be off by many pixels far from it, and its first matches may include a wrong neighbour.
     chord = 2.0 * math.sin(tol / 2.0)
-    for _ in range(_MAX_ROUNDS):
+    for _ in range(MAX_ROUNDS):
         rot = fast_rotation(frame.v[det], nav_vec[nav])
         raw, idx = db.tree.query(frame.v @ rot.T, k=2, distance_upper_bound=3.0 * chord)
         det2, nav2, dist = select_matches(raw, idx, chord)
@@ -266,7 +266,7 @@ def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, r
             break
         # Stable enough: an attitude fitted on many stars that keeps every match and adds only a few.
         grown = False
-        if len(det) >= _STABLE_FIT and len(det2) - len(det) <= max(2, len(det) // 10):
+        if len(det) >= STABLE_FIT and len(det2) - len(det) <= max(2, len(det) // 10):
             kept = np.isin(det2, det)
             grown = int(kept.sum()) == len(det) and np.array_equal(nav2[kept], nav)
         det, nav = det2, nav2
@@ -281,7 +281,7 @@ def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, r
     near = int(np.count_nonzero((raw[:, 0] > chord) & (raw[:, 0] <= 3.0 * chord)))
     if near >= 2:
         expected = (frame.n - len(det)) * (db.p_random(3.0 * tol) - db.p_random(tol))
-        if _poisson_tail(expected, near) < _MISFIT_P:
+        if _poisson_tail(expected, near) < MISFIT_P:
             return None
     rms = float(np.sqrt(np.mean(dist * dist)))  # chord ~ angle at these scales
     return Match(rot=rot, det=det2, nav=nav2, n_required=n_req, rms_rad=rms)

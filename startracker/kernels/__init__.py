@@ -1,0 +1,1 @@
+"""Compiled numba kernels of startracker, one module per room."""

@@ -197,6 +197,28 @@ def select_matches(dist, idx, chord):
 
 
 @njit(cache=True)
+def _det3(m):
+    return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+            + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+
+
+@njit(cache=True)
+def _inv_t3(m, d):
+    """Inverse transpose of a 3×3 matrix with determinant ``d`` (the cofactor matrix over ``d``)."""
+    c = np.empty((3, 3))
+    c[0, 0] = (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) / d
+    c[0, 1] = (m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2]) / d
+    c[0, 2] = (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]) / d
+    c[1, 0] = (m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2]) / d
+    c[1, 1] = (m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0]) / d
+    c[1, 2] = (m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1]) / d
+    c[2, 0] = (m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]) / d
+    c[2, 1] = (m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]) / d
+    c[2, 2] = (m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]) / d
+    return c
+
+
+@njit(cache=True)
 def rotation_svd(b, r):
     """Unweighted Wahba rotation ``R`` with ``r ≈ R b`` (SVD, proper).
 
@@ -217,6 +239,26 @@ def rotation_svd(b, r):
         for i in range(3):
             for j in range(3):
                 att[i, j] += r[t, i] * b[t, j]
+    # The orthogonal polar factor of att is U Vᵀ; scaled Newton (Higham) reaches it in a few 3×3
+    # inversions, far cheaper than a LAPACK SVD. A reflection (det < 0) or a singular matrix takes the SVD.
+    x = att.copy()
+    det0 = _det3(x)
+    if det0 > 0.0:
+        for _ in range(30):
+            d = _det3(x)
+            if not d > 0.0:
+                break
+            xi = _inv_t3(x, d)  # X⁻ᵀ
+            # Scaling by |det|^(-1/3) speeds up the first steps on ill-conditioned (narrow-field) matrices.
+            gam = (abs(d) ** (-1.0 / 3.0)) if d != 0 else 1.0
+            delta = 0.0
+            for i in range(3):
+                for j in range(3):
+                    xn = 0.5 * (gam * x[i, j] + xi[i, j] / gam)
+                    delta = max(delta, abs(xn - x[i, j]))
+                    x[i, j] = xn
+            if delta < 1e-15:
+                return x
     u, _, vt = np.linalg.svd(att)
     rot = u @ vt
     det = (rot[0, 0] * (rot[1, 1] * rot[2, 2] - rot[1, 2] * rot[2, 1])

@@ -23,14 +23,8 @@ from functools import lru_cache
 
 from startracker.identify.frame import Frame, IdentifyOptions
 from startracker.identify.pairs import join_equal
-from startracker.identify.verification import (
-    MAX_ROUNDS,
-    MISFIT_P,
-    STABLE_FIT,
-    Match,
-    fast_rotation,
-    select_matches,
-)
+from startracker.identify import verification
+from startracker.identify.verification import Match, fast_rotation, select_matches
 from startracker.kernels.identify import pyramid_search
 
 __all__ = ["smart_triads", "identify_pyramid", "PairCandidates", "triangles", "confirm_fourth", "CandidateFilter"]
@@ -251,8 +245,8 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
     status, det, nav, n_req, n_hyp, rot, rms, counts = pyramid_search(
         frame.v, frame.angle_rad, frame.pair_tol_rad, triads, pool, db.nav.vectors, kv.sorted_values, kv.k,
         kv.a1, kv.b1, db.pairs.first, db.pairs.second, db.grid_start, db.grid_stars, db.grid_cells, key, lo, hi,
-        filtered, rate, db.clumping3, db.density_eff_per_sr, frame.match_tol_rad, opts.false_alarm, MAX_ROUNDS,
-        STABLE_FIT, MISFIT_P)
+        filtered, rate, db.clumping3, db.density_eff_per_sr, frame.match_tol_rad, opts.false_alarm,
+        verification.MAX_ROUNDS, verification.STABLE_FIT, verification.MISFIT_P)
     if candidates is not None:
         candidates.pairs_geometric += int(counts[0])
         candidates.pairs_kept += int(counts[1])

@@ -71,7 +71,8 @@ def build_sky_grid(vectors: np.ndarray, g: int = GRID_CELLS) -> tuple[np.ndarray
     ijk = np.clip(((v + 1.0) * (0.5 * g)).astype(np.int64), 0, g - 1)
     cell = (ijk[:, 0] * g + ijk[:, 1]) * g + ijk[:, 2]
     cell_stars = np.argsort(cell, kind="stable").astype(np.int64)
-    cell_start = np.searchsorted(cell[cell_stars], np.arange(g**3 + 1), side="left").astype(np.int64)
+    cell_start = np.zeros(g**3 + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cell, minlength=g**3), out=cell_start[1:])
     return cell_start, cell_stars
 
 

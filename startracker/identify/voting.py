@@ -21,8 +21,20 @@ from startracker.identify.verification import Match, triangle_false_rate, verify
 __all__ = ["identify_voting", "cast_votes"]
 
 
-def cast_votes(db, frame: Frame, pool: int) -> np.ndarray:
+def cast_votes(db, frame: Frame, pool: int, mag_tol: float | None = None) -> np.ndarray:
     """Vote table of the first ``pool`` detections.
+
+    Parameters
+    ----------
+    db : StarDatabase
+    frame : Frame
+    pool : int
+    mag_tol : float, optional
+        With measured magnitudes, a catalog pair ``(I, J)`` votes for an orientation only when the
+        detections' magnitude difference matches the catalog's within ``mag_tol`` (zero-point free):
+        ``p = I, q = J`` when ``|(m_p − m_q) − (V_I − V_J)| <= mag_tol``, the reverse when
+        ``|(m_p − m_q) + (V_I − V_J)| <= mag_tol``; each passing orientation gives two votes. Without,
+        every pair votes for both stars as both detections (four votes).
 
     Returns
     -------
@@ -35,7 +47,14 @@ def cast_votes(db, frame: Frame, pool: int) -> np.ndarray:
     a, b = db.pairs.first[pi].astype(np.int64), db.pairs.second[pi].astype(np.int64)
     n_nav = db.n_stars
     dp, dq = p[qi] * n_nav, q[qi] * n_nav
-    keys = np.concatenate([dp + a, dp + b, dq + a, dq + b])
+    if mag_tol is None or frame.mag is None:
+        keys = np.concatenate([dp + a, dp + b, dq + a, dq + b])
+    else:
+        dm = (frame.mag[p] - frame.mag[q])[qi]
+        dv = (db.pairs.first_mag[pi] - db.pairs.second_mag[pi]).astype(np.float64)
+        fwd = np.abs(dm - dv) <= mag_tol
+        rev = np.abs(dm + dv) <= mag_tol
+        keys = np.concatenate([(dp + a)[fwd], (dq + b)[fwd], (dp + b)[rev], (dq + a)[rev]])
     return np.bincount(keys, minlength=pool * n_nav).reshape(pool, n_nav)
 
 
@@ -45,7 +64,7 @@ def identify_voting(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | No
     if n < 3:
         return None, "fewer than 3 usable detections", 0
     pool = min(n, opts.max_stars or 20, len(frame.angle_rad))
-    votes = cast_votes(db, frame, pool)
+    votes = cast_votes(db, frame, pool, mag_tol=3.0 * np.sqrt(2.0) * opts.mag_sigma)
     ident = votes.argmax(axis=1)
     has = votes[np.arange(pool), ident] > 0
     # Validation vote.

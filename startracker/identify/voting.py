@@ -22,11 +22,12 @@ from __future__ import annotations
 import numpy as np
 
 from startracker.identify.frame import Frame, IdentifyOptions
-from startracker.identify.pairs import expand_ranges
 from startracker.identify.verification import Match, triangle_false_rate, verify
+from startracker.kernels.identify import cast_votes as kernel_cast_votes
 
 __all__ = ["identify_voting", "cast_votes"]
 
+_NO_MAG = np.zeros(1)
 _TOP = 32  # candidates per detection that enter the validation vote
 
 
@@ -50,21 +51,13 @@ def cast_votes(db, frame: Frame, pool: int, mag_tol: float | None = None) -> np.
     ndarray of int, shape (pool, N)
         Votes for each (detection, navigation star).
     """
-    p, q = np.triu_indices(pool, 1)
-    start, stop = db.pairs.ranges(frame.angle_rad[p, q], frame.pair_tol_rad[p, q])
-    qi, pi = expand_ranges(start, stop)
-    a, b = db.pairs.first[pi].astype(np.int64), db.pairs.second[pi].astype(np.int64)
-    n_nav = db.n_stars
-    dp, dq = p[qi] * n_nav, q[qi] * n_nav
-    if mag_tol is None or frame.mag is None:
-        keys = np.concatenate([dp + a, dp + b, dq + a, dq + b])
-    else:
-        dm = (frame.mag[p] - frame.mag[q])[qi]
-        dv = (db.pairs.first_mag[pi] - db.pairs.second_mag[pi]).astype(np.float64)
-        fwd = np.abs(dm - dv) <= mag_tol
-        rev = np.abs(dm + dv) <= mag_tol
-        keys = np.concatenate([(dp + a)[fwd], (dq + b)[fwd], (dp + b)[rev], (dq + a)[rev]])
-    return np.bincount(keys, minlength=pool * n_nav).reshape(pool, n_nav)
+    pairs = db.pairs
+    kv = pairs.kvector
+    use_mag = mag_tol is not None and frame.mag is not None
+    mag = frame.mag if use_mag else _NO_MAG
+    return kernel_cast_votes(frame.angle_rad, frame.pair_tol_rad, pool, kv.sorted_values, kv.k, kv.a1, kv.b1,
+                             pairs.first, pairs.second, pairs.first_mag, pairs.second_mag, mag,
+                             float(mag_tol) if use_mag else 0.0, use_mag, db.n_stars)
 
 
 def identify_voting(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | None, str, int]:

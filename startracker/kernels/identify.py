@@ -844,3 +844,56 @@ def pyramid_search(v, ang, tol, triads, pool, nav, s_ang, kk, a1, b1, first, sec
                 ver_rot[bi].copy(), ver_rms[bi], counts)
     status = STATUS_AMBIGUOUS if ambiguous else STATUS_NONE
     return status, empty, empty, 0, n_hyp, np.eye(3), np.inf, counts
+
+
+@njit(cache=True)
+def cast_votes(ang, tol, pool, s_ang, kk, a1, b1, first, second, first_mag, second_mag, mag, mag_tol, use_mag,
+               n_nav):
+    """Geometric-voting table (see :mod:`startracker.identify.voting`).
+
+    Parameters
+    ----------
+    ang, tol : ndarray, shape (m, m)
+        Inter-star angles and window half-widths of the first ``m >= pool`` detections, rad.
+    pool : int
+    s_ang, kk, a1, b1
+        Star-pair catalog angles (sorted, rad) and their k-vector.
+    first, second : ndarray of int, shape (M,)
+    first_mag, second_mag : ndarray of float32, shape (M,)
+        V magnitudes of the pair stars.
+    mag : ndarray, shape (n,)
+        Measured magnitudes (read only when ``use_mag``).
+    mag_tol : float
+        Magnitude-difference tolerance of the brightness-ordered votes.
+    use_mag : bool
+    n_nav : int
+
+    Returns
+    -------
+    ndarray of int64, shape (pool, n_nav)
+    """
+    votes = np.zeros((pool, n_nav), dtype=np.int64)
+    for p in range(pool):
+        for q in range(p + 1, pool):
+            start, stop = kvector_range(s_ang, kk, a1, b1, ang[p, q] - tol[p, q], ang[p, q] + tol[p, q])
+            if use_mag:
+                dm = mag[p] - mag[q]
+                for u in range(start, stop):
+                    a = first[u]
+                    b = second[u]
+                    dv = float(first_mag[u]) - float(second_mag[u])
+                    if abs(dm - dv) <= mag_tol:
+                        votes[p, a] += 1
+                        votes[q, b] += 1
+                    if abs(dm + dv) <= mag_tol:
+                        votes[p, b] += 1
+                        votes[q, a] += 1
+            else:
+                for u in range(start, stop):
+                    a = first[u]
+                    b = second[u]
+                    votes[p, a] += 1
+                    votes[p, b] += 1
+                    votes[q, a] += 1
+                    votes[q, b] += 1
+    return votes

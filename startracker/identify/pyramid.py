@@ -211,6 +211,7 @@ class CandidateFilter:
 
 
 _NO_KEY = np.zeros(1)
+CHEAP_FIRST = 10  # triads are tried cheapest first within blocks of this many (smart order across blocks)
 
 
 def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
@@ -243,7 +244,7 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
         rate = np.ascontiguousarray(candidates.false_rate_scale, dtype=np.float64)
         filtered = True
     status, det, nav, n_req, n_hyp, rot, rms, counts = pyramid_search(
-        frame.v, frame.angle_rad, frame.pair_tol_rad, triads, pool, db.nav.vectors, kv.sorted_values, kv.k,
+        frame.v, frame.angle_rad, frame.pair_tol_rad, triads, CHEAP_FIRST, pool, db.nav.vectors, kv.sorted_values, kv.k,
         kv.a1, kv.b1, db.pairs.first, db.pairs.second, db.grid_start, db.grid_stars, db.grid_cells, key, lo, hi,
         filtered, rate, db.clumping3, db.density_eff_per_sr, frame.match_tol_rad, opts.false_alarm,
         verification.MAX_ROUNDS, verification.STABLE_FIT, verification.MISFIT_P)

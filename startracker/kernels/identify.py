@@ -624,7 +624,7 @@ def _window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, fi
 
 
 @njit(cache=True)
-def pyramid_search(v, ang, tol, triads, pool, nav, s_ang, kk, a1, b1, first, second, cell_start, cell_stars,
+def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b1, first, second, cell_start, cell_stars,
                    g, star_key, key_lo, key_hi, filtered, rate, clumping, dens_eff_per_sr, match_tol_rad,
                    false_alarm, max_rounds, stable_fit, misfit_p):
     """The pyramid hypothesis loop (see the module docstring), up to the first triad that verifies.
@@ -637,6 +637,8 @@ def pyramid_search(v, ang, tol, triads, pool, nav, s_ang, kk, a1, b1, first, sec
         Inter-star angles of the first ``m >= pool`` detections and their window half-widths, rad.
     triads : ndarray of int64, shape (T, 3)
         Detection triads in the order to try (Mortari's smart order).
+    cheap_first : int
+        Block size within which triads are tried cheapest first (0: the given order).
     pool : int
         Size of the hypothesis pool (fourth stars are looked for among detections ``0 .. max(pool, 4)-1``).
     nav : ndarray, shape (N, 3)
@@ -682,8 +684,9 @@ def pyramid_search(v, ang, tol, triads, pool, nav, s_ang, kk, a1, b1, first, sec
     n_hyp = 0
     counts = np.zeros(2, dtype=np.int64)
     seen = np.zeros((ang.shape[0], ang.shape[0]), dtype=np.bool_)
-    stamp = np.full(n_nav, -1, dtype=np.int64)
-    head = np.empty(n_nav, dtype=np.int64)
+    # int32 work arrays: the join's random accesses then stay in the first-level caches.
+    stamp = np.full(n_nav, -1, dtype=np.int32)
+    head = np.empty(n_nav, dtype=np.int32)
     chord = 2.0 * math.sin(match_tol_rad / 2.0)
     n4 = min(max(pool, 4), n)
     dist = np.empty((n, 2))
@@ -693,7 +696,27 @@ def pyramid_search(v, ang, tol, triads, pool, nav, s_ang, kk, a1, b1, first, sec
     w1 = np.empty((1, 3))
     d1 = np.empty((1, 2))
     i1 = np.empty((1, 2), dtype=np.int64)
-    for t in range(triads.shape[0]):
+    order = np.arange(triads.shape[0])
+    if cheap_first > 0:
+        # Cheapest triads first: the cost of a triad is the size of its two shortest windows (the join
+        # runs on them). Within blocks of ``cheap_first`` triads of the smart order, so a false star still
+        # cannot spoil a long run.
+        cnt = np.zeros((pool, pool), dtype=np.int64)
+        for p in range(pool):
+            for q in range(p + 1, pool):
+                st0, sp0 = kvector_range(s_ang, kk, a1, b1, ang[p, q] - tol[p, q], ang[p, q] + tol[p, q])
+                cnt[p, q] = sp0 - st0
+        cost = np.empty(triads.shape[0], dtype=np.int64)
+        for t in range(triads.shape[0]):
+            x, y, z = cnt[triads[t, 0], triads[t, 1]], cnt[triads[t, 0], triads[t, 2]], cnt[triads[t, 1], triads[t, 2]]
+            cost[t] = x + y + z - max(x, max(y, z))
+        for b0 in range(0, triads.shape[0], cheap_first):
+            b1_ = min(b0 + cheap_first, triads.shape[0])
+            sub = np.argsort(cost[b0:b1_], kind="mergesort")
+            for u in range(b1_ - b0):
+                order[b0 + u] = b0 + sub[u]
+    for tt in range(triads.shape[0]):
+        t = order[tt]
         i, j, k = triads[t, 0], triads[t, 1], triads[t, 2]
         # Apex opposite the widest window: the join then runs on the two shortest lists.
         c_ij, kij = _window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
@@ -721,8 +744,8 @@ def pyramid_search(v, ang, tol, triads, pool, nav, s_ang, kk, a1, b1, first, sec
         # Adjacency of window (i, j): stars a that may be s_i, each with its partners b (s_j).
         st, sp = kvector_range(s_ang, kk, a1, b1, ang[i, j] - tol[i, j], ang[i, j] + tol[i, j])
         m_ij = 2 * (sp - st)
-        nxt = np.empty(m_ij, dtype=np.int64)
-        partner = np.empty(m_ij, dtype=np.int64)
+        nxt = np.empty(m_ij, dtype=np.int32)
+        partner = np.empty(m_ij, dtype=np.int32)
         e = 0
         for u in range(st, sp):
             for o in range(2):

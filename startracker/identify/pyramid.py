@@ -5,11 +5,18 @@ three indices as fast as possible so that a false star does not spoil a long run
 
     for dj in 1 .. n-2:  for dk in 1 .. n-dj-1:  for i in 1 .. n-dj-dk:   (i, i+dj, i+dj+dk)
 
-For each triad the three inter-star angles are looked up in the star-pair catalog with the k-vector;
+Within blocks of ten triads of that order the cheapest are tried first (the cost of a triad is the size
+of its two shortest pair windows: short sides have few catalog pairs). For each triad the three
+inter-star angles are looked up in the star-pair catalog with the k-vector;
 the catalog triangles consistent with all three (and with the measured handedness) are the hypotheses.
 A hypothesis needs a fourth detection ``r`` whose catalog star has the right angles to all three
 (the pyramid); then the common verification decides, and reporting failure is preferred to a
 low-confidence answer (two different verified attitudes make the frame ambiguous).
+
+The loop runs compiled (:func:`startracker.kernels.identify.pyramid_search`); the numpy pieces
+(:class:`PairCandidates`, :func:`triangles`, :func:`confirm_fourth`) serve the brightness-referenced
+method and as the reference the kernel is tested against. :class:`CandidateFilter` makes the candidate
+source injectable (colour-aided identification).
 """
 
 from __future__ import annotations

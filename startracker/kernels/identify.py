@@ -40,6 +40,7 @@ __all__ = [
     "required_matches",
     "triangle_false_rate",
     "kvector_range",
+    "refine_matches",
     "verify_hypothesis",
     "pyramid_search",
 ]
@@ -482,6 +483,59 @@ def _rotate_all(rot, v):
 
 
 @njit(cache=True)
+def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, max_rounds, stable_fit, dist, idx):
+    """Refit the attitude on every match and match again until the matches stop changing.
+
+    Returns
+    -------
+    ok : bool
+        False when the matches fall below ``n_req`` or never settle.
+    rot : ndarray, shape (3, 3)
+    det, navm, dm : ndarray
+        Final matches and their chord distances; ``dist`` / ``idx`` hold the last query.
+    """
+    rot = np.eye(3)
+    dm = np.empty(0)
+    converged = False
+    for _ in range(max_rounds):
+        b = np.empty((len(det), 3))
+        r = np.empty((len(det), 3))
+        for t in range(len(det)):
+            b[t] = v[det[t]]
+            r[t] = nav[navm[t]]
+        rot = rotation_svd(b, r)
+        nearest_two(_rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * chord, dist, idx)
+        det2, nav2, dm = select_matches(dist, idx, chord)
+        if len(det2) < n_req:
+            return False, rot, det2, nav2, dm
+        same = len(det2) == len(det)
+        if same:
+            for t in range(len(det)):
+                if det2[t] != det[t] or nav2[t] != navm[t]:
+                    same = False
+                    break
+        if same:
+            converged = True
+            break
+        grown = False
+        if len(det) >= stable_fit and len(det2) - len(det) <= max(2, len(det) // 10):
+            # every old match kept with the same star, only new ones added
+            grown = True
+            t2 = 0
+            for t in range(len(det)):
+                while t2 < len(det2) and det2[t2] < det[t]:
+                    t2 += 1
+                if t2 >= len(det2) or det2[t2] != det[t] or nav2[t2] != navm[t]:
+                    grown = False
+                    break
+        det, navm = det2, nav2
+        if grown:
+            converged = True
+            break
+    return converged, rot, det, navm, dm
+
+
+@njit(cache=True)
 def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_rot, lam, false_alarm,
                       match_tol_rad, dens_eff_per_sr, max_rounds, stable_fit, misfit_p):
     """Verification of one hypothesis (see :mod:`startracker.identify.verification`).
@@ -540,44 +594,28 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
     det, navm, dm = select_matches(dist, idx, chord)
     if len(det) < n_req:
         return False, rot, empty, empty, n_req, np.inf
-    converged = False
-    for _ in range(max_rounds):
-        b = np.empty((len(det), 3))
-        r = np.empty((len(det), 3))
-        for t in range(len(det)):
-            b[t] = v[det[t]]
-            r[t] = nav[navm[t]]
-        rot = rotation_svd(b, r)
-        nearest_two(_rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * chord, dist, idx)
-        det2, nav2, dm = select_matches(dist, idx, chord)
-        if len(det2) < n_req:
-            return False, rot, empty, empty, n_req, np.inf
-        same = len(det2) == len(det)
-        if same:
-            for t in range(len(det)):
-                if det2[t] != det[t] or nav2[t] != navm[t]:
-                    same = False
-                    break
-        if same:
-            converged = True
-            break
-        grown = False
-        if len(det) >= stable_fit and len(det2) - len(det) <= max(2, len(det) // 10):
-            # every old match kept with the same star, only new ones added
-            grown = True
-            t2 = 0
-            for t in range(len(det)):
-                while t2 < len(det2) and det2[t2] < det[t]:
-                    t2 += 1
-                if t2 >= len(det2) or det2[t2] != det[t] or nav2[t2] != navm[t]:
-                    grown = False
-                    break
-        det, navm = det2, nav2
-        if grown:
-            converged = True
-            break
-    if not converged:
+    ok, rot, det, navm, dm = refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, max_rounds,
+                                            stable_fit, dist, idx)
+    if not ok:
         return False, rot, empty, empty, n_req, np.inf
+    if len(det) < n:
+        # Growth: an attitude fitted on a tight group of stars can miss the far ones by several radii
+        # (a poorly observed roll). Match once with a radius four times wider, refit, and refine again
+        # with the normal radius; keep the result only if it holds more matches.
+        wide = 4.0 * chord
+        dist_w = np.empty((n, 2))
+        idx_w = np.empty((n, 2), dtype=np.int64)
+        nearest_two(_rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * wide, dist_w, idx_w)
+        det_w, nav_w, _ = select_matches(dist_w, idx_w, wide)
+        if len(det_w) > len(det):
+            dist_g = np.empty((n, 2))
+            idx_g = np.empty((n, 2), dtype=np.int64)
+            ok_g, rot_g, det_g, nav_g, dm_g = refine_matches(v, nav, cell_start, cell_stars, g, det_w, nav_w, chord,
+                                                             n_req, max_rounds, stable_fit, dist_g, idx_g)
+            if ok_g and len(det_g) > len(det):
+                rot, det, navm, dm = rot_g, det_g, nav_g, dm_g
+                dist[:, :] = dist_g
+                idx[:, :] = idx_g
     near = 0
     for q in range(n):
         if dist[q, 0] > chord and dist[q, 0] <= 3.0 * chord:

@@ -27,6 +27,13 @@ import numpy as np
 from numba import njit
 
 __all__ = [
+    "rotate_all",
+    "triple_product",
+    "admissible",
+    "window_count",
+    "det3",
+    "inv_transpose3",
+    "cast_votes",
     "GRID_CELLS",
     "build_sky_grid",
     "grid_cell",
@@ -199,13 +206,14 @@ def select_matches(dist, idx, chord):
 
 
 @njit(cache=True)
-def _det3(m):
+def det3(m):
+    """Determinant of a 3×3 matrix."""
     return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
             + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
 
 
 @njit(cache=True)
-def _inv_t3(m, d):
+def inv_transpose3(m, d):
     """Inverse transpose of a 3×3 matrix with determinant ``d`` (the cofactor matrix over ``d``)."""
     c = np.empty((3, 3))
     c[0, 0] = (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) / d
@@ -244,13 +252,13 @@ def rotation_svd(b, r):
     # The orthogonal polar factor of att is U Vᵀ; scaled Newton (Higham) reaches it in a few 3×3
     # inversions, far cheaper than a LAPACK SVD. A reflection (det < 0) or a singular matrix takes the SVD.
     x = att.copy()
-    det0 = _det3(x)
+    det0 = det3(x)
     if det0 > 0.0:
         for _ in range(30):
-            d = _det3(x)
+            d = det3(x)
             if not d > 0.0:
                 break
-            xi = _inv_t3(x, d)  # X⁻ᵀ
+            xi = inv_transpose3(x, d)  # X⁻ᵀ
             # Scaling by |det|^(-1/3) speeds up the first steps on ill-conditioned (narrow-field) matrices.
             gam = (abs(d) ** (-1.0 / 3.0)) if d != 0 else 1.0
             delta = 0.0
@@ -474,7 +482,8 @@ def kvector_range(s, kk, a1, b1, lo, hi):
 
 
 @njit(cache=True)
-def _rotate_all(rot, v):
+def rotate_all(rot, v):
+    """``v @ rot.T``: rows of ``v`` (n, 3) rotated by ``rot`` (3, 3)."""
     out = np.empty_like(v)
     for t in range(v.shape[0]):
         for i in range(3):
@@ -504,7 +513,7 @@ def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, m
             b[t] = v[det[t]]
             r[t] = nav[navm[t]]
         rot = rotation_svd(b, r)
-        nearest_two(_rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * chord, dist, idx)
+        nearest_two(rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * chord, dist, idx)
         det2, nav2, dm = select_matches(dist, idx, chord)
         if len(det2) < n_req:
             return False, rot, det2, nav2, dm
@@ -590,7 +599,7 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
         rot = rotation_svd(b, r)
     dist = np.empty((n, 2))
     idx = np.empty((n, 2), dtype=np.int64)
-    nearest_two(_rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * chord, dist, idx)
+    nearest_two(rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * chord, dist, idx)
     det, navm, dm = select_matches(dist, idx, chord)
     if len(det) < n_req:
         return False, rot, empty, empty, n_req, np.inf
@@ -605,7 +614,7 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
         wide = 4.0 * chord
         dist_w = np.empty((n, 2))
         idx_w = np.empty((n, 2), dtype=np.int64)
-        nearest_two(_rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * wide, dist_w, idx_w)
+        nearest_two(rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * wide, dist_w, idx_w)
         det_w, nav_w, _ = select_matches(dist_w, idx_w, wide)
         if len(det_w) > len(det):
             dist_g = np.empty((n, 2))
@@ -633,20 +642,22 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
 
 
 @njit(cache=True)
-def _cross_dot(a, b, c):
-    """a · (b × c)."""
+def triple_product(a, b, c):
+    """a · (b × c) of three 3-vectors."""
     return (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
             + a[2] * (b[0] * c[1] - b[1] * c[0]))
 
 
 @njit(cache=True)
-def _admissible(star_key, key_lo, key_hi, p, s):
+def admissible(star_key, key_lo, key_hi, p, s):
+    """Whether star ``s`` may stand for detection ``p`` under the candidate filter."""
     k = star_key[s]
     return k >= key_lo[p] and k <= key_hi[p]
 
 
 @njit(cache=True)
-def _window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang, tol, p, q):
+def window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang, tol, p, q):
+    """Catalog pair candidates (both orientations) in the window of detections (p, q), and those kept."""
     start, stop = kvector_range(s_ang, kk, a1, b1, ang[p, q] - tol[p, q], ang[p, q] + tol[p, q])
     if not filtered:
         return 2 * (stop - start), 2 * (stop - start)
@@ -654,9 +665,9 @@ def _window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, fi
     for t in range(start, stop):
         a = first[t]
         b = second[t]
-        if _admissible(star_key, key_lo, key_hi, p, a) and _admissible(star_key, key_lo, key_hi, q, b):
+        if admissible(star_key, key_lo, key_hi, p, a) and admissible(star_key, key_lo, key_hi, q, b):
             kept += 1
-        if _admissible(star_key, key_lo, key_hi, p, b) and _admissible(star_key, key_lo, key_hi, q, a):
+        if admissible(star_key, key_lo, key_hi, p, b) and admissible(star_key, key_lo, key_hi, q, a):
             kept += 1
     return 2 * (stop - start), kept
 
@@ -757,11 +768,11 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
         t = order[tt]
         i, j, k = triads[t, 0], triads[t, 1], triads[t, 2]
         # Apex opposite the widest window: the join then runs on the two shortest lists.
-        c_ij, kij = _window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
+        c_ij, kij = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
                                   tol, i, j)
-        c_ik, kik = _window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
+        c_ik, kik = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
                                   tol, i, k)
-        c_jk, kjk = _window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
+        c_jk, kjk = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
                                   tol, j, k)
         if not seen[i, j]:
             seen[i, j] = True
@@ -789,8 +800,8 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
             for o in range(2):
                 a = first[u] if o == 0 else second[u]
                 b = second[u] if o == 0 else first[u]
-                if filtered and not (_admissible(star_key, key_lo, key_hi, i, a)
-                                     and _admissible(star_key, key_lo, key_hi, j, b)):
+                if filtered and not (admissible(star_key, key_lo, key_hi, i, a)
+                                     and admissible(star_key, key_lo, key_hi, j, b)):
                     continue
                 if stamp[a] != t:
                     stamp[a] = t
@@ -804,7 +815,7 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
         th, tw = ang[j, k], tol[j, k]
         cos_hi = math.cos(max(th - tw, 0.0))
         cos_lo = math.cos(min(th + tw, math.pi))
-        s_meas = _cross_dot(v[i], v[j], v[k])
+        s_meas = triple_product(v[i], v[j], v[k])
         # Window (i, k): a (s_i) with c (s_k); join on a, check (b, c) and handedness.
         st2, sp2 = kvector_range(s_ang, kk, a1, b1, ang[i, k] - tol[i, k], ang[i, k] + tol[i, k])
         hyp = np.empty((16, 3), dtype=np.int64)
@@ -815,8 +826,8 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
                 c = second[u] if o == 0 else first[u]
                 if stamp[a] != t:
                     continue
-                if filtered and not (_admissible(star_key, key_lo, key_hi, i, a)
-                                     and _admissible(star_key, key_lo, key_hi, k, c)):
+                if filtered and not (admissible(star_key, key_lo, key_hi, i, a)
+                                     and admissible(star_key, key_lo, key_hi, k, c)):
                     continue
                 x = head[a]
                 while x >= 0:
@@ -825,7 +836,7 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
                     cbc = nav[b, 0] * nav[c, 0] + nav[b, 1] * nav[c, 1] + nav[b, 2] * nav[c, 2]
                     if cbc > cos_hi or cbc < cos_lo:
                         continue
-                    s_cat = _cross_dot(nav[a], nav[b], nav[c])
+                    s_cat = triple_product(nav[a], nav[b], nav[c])
                     if (s_cat > 0) != (s_meas > 0):
                         continue
                     if h == hyp.shape[0]:

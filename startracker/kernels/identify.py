@@ -34,6 +34,7 @@ __all__ = [
     "det3",
     "inv_transpose3",
     "cast_votes",
+    "frame_tables",
     "GRID_CELLS",
     "build_sky_grid",
     "grid_cell",
@@ -969,3 +970,60 @@ def cast_votes(ang, tol, pool, s_ang, kk, a1, b1, first, second, first_mag, seco
                     votes[q, a] += 1
                     votes[q, b] += 1
     return votes
+
+
+@njit(cache=True)
+def frame_tables(v, n_angles, dup_cos, pair_sigma_rad, floor_rad, aberration_scale):
+    """Duplicates, inter-star angles and pair windows of a frame's detections.
+
+    Parameters
+    ----------
+    v : ndarray, shape (n, 3)
+        Camera-frame unit vectors, brightest first.
+    n_angles : int
+        Tabulate the first ``m = min(n_kept, n_angles)`` kept detections.
+    dup_cos : float
+        Cosine of the duplicate radius: a detection closer than that to an earlier one is dropped.
+    pair_sigma_rad : float
+        ``pair_sigmas · √2 · σ`` of an inter-star angle, rad.
+    floor_rad : float
+        Added in quadrature to the window half-width, rad.
+    aberration_scale : float
+        Relative widening of a window with its angle.
+
+    Returns
+    -------
+    keep : ndarray of bool, shape (n,)
+    ang : ndarray, shape (m, m)
+        Angles between kept detections, rad.
+    tol : ndarray, shape (m, m)
+        Window half-widths, rad.
+    """
+    n = v.shape[0]
+    keep = np.ones(n, dtype=np.bool_)
+    for j in range(1, n):
+        for i in range(j):
+            if v[i, 0] * v[j, 0] + v[i, 1] * v[j, 1] + v[i, 2] * v[j, 2] > dup_cos:
+                keep[j] = False
+                break
+    idx = np.flatnonzero(keep)
+    m = min(len(idx), n_angles)
+    ang = np.zeros((m, m))
+    tol = np.empty((m, m))
+    base = math.sqrt(pair_sigma_rad * pair_sigma_rad + floor_rad * floor_rad)
+    for a in range(m):
+        tol[a, a] = base
+        for b in range(a + 1, m):
+            p, q = idx[a], idx[b]
+            # atan2 of |p × q| and p · q: accurate at small angles too
+            cx = v[p, 1] * v[q, 2] - v[p, 2] * v[q, 1]
+            cy = v[p, 2] * v[q, 0] - v[p, 0] * v[q, 2]
+            cz = v[p, 0] * v[q, 1] - v[p, 1] * v[q, 0]
+            dot = v[p, 0] * v[q, 0] + v[p, 1] * v[q, 1] + v[p, 2] * v[q, 2]
+            t = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), dot)
+            ang[a, b] = t
+            ang[b, a] = t
+            w = base + aberration_scale * t
+            tol[a, b] = w
+            tol[b, a] = w
+    return keep, ang, tol

@@ -1,31 +1,36 @@
 """On-disk cache of databases (arrays) built once per (catalog, camera): atomic, pickle-free, verified.
 
-A cache entry is one ``.npz`` file named by the SHA-256 of its key (the parameters that determine the
-database, including a format version). It holds the arrays plus two extra entries: the key itself and a
-SHA-256 checksum of every array's bytes, dtype and shape. Loading uses ``allow_pickle=False`` and checks both;
-a corrupt, truncated, stale (other key or version) or unreadable file is reported, deleted and rebuilt, never
-trusted. Files are written to a temporary name in the same folder and renamed into place, so a crash never
-leaves a half-written entry under the real name.
+A cache entry is one file named by the SHA-256 of its key (the parameters that determine the database,
+including a format version). Layout: a magic line, the length of a JSON header, the header (the key,
+each array's name, dtype, shape and offset, and the SHA-256 of the payload), then the arrays' raw bytes
+(little-endian, 64-byte aligned). Loading reads the file once, checks the magic, the key and the checksum,
+and views the arrays in the payload (no copy, no pickle: dtypes are plain numeric or fixed-width strings).
+A corrupt, truncated, stale (other key or version) or unreadable file is reported, deleted and rebuilt,
+never trusted. Files are written to a temporary name in the same folder and renamed into place, so a
+crash never leaves a half-written entry under the real name.
 
-The folder is ``$STARTRACKER_CACHE_DIR`` if set, else ``~/.cache/startracker-gym``; set the variable to an empty
-string to disable the disk cache (in-memory caches still apply).
+The folder is ``$STARTRACKER_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/startracker-gym``, else
+``~/.cache/startracker-gym``; set ``STARTRACKER_CACHE_DIR`` to an empty string to disable the disk cache
+(in-memory caches still apply). Used by :func:`startracker.identify.build_database`.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import mmap
 import os
+import struct
 import tempfile
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["cache_dir", "load_or_build", "key_digest", "CacheStats", "STATS"]
+__all__ = ["cache_dir", "load_or_build", "key_digest", "entry_path", "CacheStats", "STATS"]
 
-_KEY_ENTRY = "__cache_key__"
-_SUM_ENTRY = "__cache_checksum__"
+_MAGIC = b"STARTRACKER-CACHE 2\n"
+_ALIGN = 64
+_RESERVED = ("__cache_key__", "__cache_checksum__")
 
 
 class CacheStats:
@@ -48,6 +53,9 @@ def cache_dir() -> Path | None:
     env = os.environ.get("STARTRACKER_CACHE_DIR")
     if env is not None:
         return Path(env) if env.strip() else None
+    xdg = os.environ.get("XDG_CACHE_HOME", "").strip()
+    if xdg:
+        return Path(xdg) / "startracker-gym"
     return Path.home() / ".cache" / "startracker-gym"
 
 
@@ -56,15 +64,10 @@ def key_digest(key: dict) -> str:
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def _checksum(arrays: dict[str, np.ndarray]) -> str:
-    h = hashlib.sha256()
-    for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
-        h.update(name.encode())
-        h.update(str(a.dtype).encode())
-        h.update(str(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
+def entry_path(key: dict, folder: Path | None = None) -> Path | None:
+    """File of the entry of ``key`` (None when the disk cache is disabled)."""
+    folder = cache_dir() if folder is None else Path(folder)
+    return None if folder is None else folder / f"{key_digest(key)}.bin"
 
 
 def _validate_arrays(arrays) -> dict[str, np.ndarray]:
@@ -73,39 +76,75 @@ def _validate_arrays(arrays) -> dict[str, np.ndarray]:
     out = {}
     for k, v in arrays.items():
         a = np.asarray(v)
-        if a.dtype == object:
-            raise TypeError(f"array {k!r} has dtype object: the cache stores plain arrays only (no pickle)")
-        if k in (_KEY_ENTRY, _SUM_ENTRY):
+        if a.dtype == object or a.dtype.kind not in "biufcSU":
+            raise TypeError(f"array {k!r} has dtype {a.dtype}: the cache stores plain numeric or string arrays only (no pickle)")
+        if k in _RESERVED:
             raise ValueError(f"array name {k!r} is reserved")
-        out[k] = a
+        out[k] = a if a.flags.c_contiguous else a.copy(order="C")
     return out
+
+
+def _layout(arrays: dict[str, np.ndarray]) -> tuple[list, int]:
+    entries = []
+    off = 0
+    for name in sorted(arrays):
+        a = arrays[name]
+        dt = a.dtype.newbyteorder("<") if a.dtype.byteorder not in ("|", "<", "=") else a.dtype
+        entries.append({"name": name, "dtype": dt.str, "shape": list(a.shape), "offset": off, "nbytes": a.nbytes})
+        off += (a.nbytes + _ALIGN - 1) // _ALIGN * _ALIGN
+    return entries, off
 
 
 def _read(path: Path, key_text: str) -> dict[str, np.ndarray] | None:
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if _KEY_ENTRY not in z.files or _SUM_ENTRY not in z.files:
+        with open(path, "rb") as fh:
+            # A read-only map: the arrays are views of the page cache, no copy (the map outlives a
+            # later replacement of the file, which gets a new inode).
+            raw = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    except (OSError, ValueError):
+        return None
+    try:
+        if len(raw) < len(_MAGIC) + 8 or raw[: len(_MAGIC)] != _MAGIC:
+            return None
+        (hlen,) = struct.unpack_from("<Q", raw, len(_MAGIC))
+        start = len(_MAGIC) + 8
+        header = json.loads(raw[start : start + hlen].decode())
+        if header.get("key") != key_text:
+            return None  # stale: another version or parameters hashed to this name
+        base = (start + hlen + _ALIGN - 1) // _ALIGN * _ALIGN
+        payload = memoryview(raw)[base:]
+        if len(payload) != header["payload_bytes"] or hashlib.sha256(payload).hexdigest() != header["sha256"]:
+            return None
+        out = {}
+        for e in header["arrays"]:
+            dt = np.dtype(e["dtype"])
+            if dt.kind not in "biufcSU":
                 return None
-            if str(z[_KEY_ENTRY]) != key_text:
-                return None  # stale: another version or parameters hashed to this name
-            arrays = {k: z[k] for k in z.files if k not in (_KEY_ENTRY, _SUM_ENTRY)}
-            if _checksum(arrays) != str(z[_SUM_ENTRY]):
-                return None
-            return arrays
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+            count = int(np.prod(e["shape"], dtype=np.int64))
+            a = np.frombuffer(raw, dtype=dt, count=count, offset=base + e["offset"]).reshape(tuple(e["shape"]))
+            out[e["name"]] = a
+        return out
+    except (ValueError, KeyError, TypeError, struct.error, UnicodeDecodeError):
         return None
 
 
 def _write_atomic(path: Path, arrays: dict[str, np.ndarray], key_text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp.npz")
-    os.close(fd)
+    entries, total = _layout(arrays)
+    payload = bytearray(total)
+    for e in entries:
+        a = arrays[e["name"]]
+        payload[e["offset"] : e["offset"] + e["nbytes"]] = a.astype(np.dtype(e["dtype"]), copy=False).tobytes()
+    header = json.dumps({"key": key_text, "arrays": entries, "payload_bytes": total,
+                         "sha256": hashlib.sha256(payload).hexdigest()}).encode()
+    start = len(_MAGIC) + 8
+    base = (start + len(header) + _ALIGN - 1) // _ALIGN * _ALIGN
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
     try:
-        payload = dict(arrays)
-        payload[_KEY_ENTRY] = np.array(key_text)
-        payload[_SUM_ENTRY] = np.array(_checksum(arrays))
-        np.savez(tmp, **payload)
-        with open(tmp, "rb") as fh:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(_MAGIC + struct.pack("<Q", len(header)) + header + b"\0" * (base - start - len(header)))
+            fh.write(payload)
+            fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     finally:
@@ -137,7 +176,7 @@ def load_or_build(key: dict, build, folder: Path | None = None) -> dict[str, np.
     if folder is None:
         STATS.builds += 1
         return _validate_arrays(build())
-    path = folder / f"{key_digest(key)}.npz"
+    path = entry_path(key, folder)
     if path.exists():
         arrays = _read(path, key_text)
         if arrays is not None:

@@ -67,6 +67,34 @@ class KVector:
         k[-1] = n
         self.k = k
 
+    @classmethod
+    def from_arrays(cls, sorted_values, order, k, a1: float, b1: float) -> "KVector":
+        """A k-vector from its stored arrays (a disk cache), without re-sorting.
+
+        Parameters
+        ----------
+        sorted_values : ndarray, shape (n,)
+            ``S``, ascending.
+        order : ndarray of int, shape (n,) or None
+            ``R``; None for values that were given sorted (the identity).
+        k : ndarray of int, shape (n,)
+            ``K``.
+        a1, b1 : float
+            The fitted line.
+        """
+        s = np.ascontiguousarray(sorted_values, dtype=np.float64)
+        n = len(s)
+        if n == 0 or s.ndim != 1 or len(k) != n or (order is not None and len(order) != n):
+            raise ValueError("sorted_values, order and k must be 1-D arrays of the same non-zero length")
+        kv = cls.__new__(cls)
+        kv.sorted_values = s
+        kv.order = np.arange(n) if order is None else np.asarray(order, dtype=np.int64)
+        kv.k = np.asarray(k, dtype=np.int64)
+        kv.a1 = float(a1)
+        kv.b1 = float(b1)
+        kv.n = n
+        return kv
+
     def __len__(self) -> int:
         return self.n
 

@@ -36,7 +36,7 @@ def test_corrupt_or_stale_file_is_rebuilt_not_trusted(tmp_path, damage):
     calls = []
     key = {"kind": "test", "version": 1}
     good = cache.load_or_build(key, builder(calls), folder=tmp_path)
-    path = tmp_path / f"{cache.key_digest(key)}.npz"
+    path = cache.entry_path(key, tmp_path)
     raw = path.read_bytes()
     if damage == "truncate":
         path.write_bytes(raw[: len(raw) // 2])
@@ -50,7 +50,7 @@ def test_corrupt_or_stale_file_is_rebuilt_not_trusted(tmp_path, damage):
     else:
         other = tmp_path / "other"
         cache.load_or_build({"kind": "other"}, builder([]), folder=other)
-        (other / f"{cache.key_digest({'kind': 'other'})}.npz").replace(path)
+        cache.entry_path({"kind": "other"}, other).replace(path)
     rejected = cache.STATS.rejected
     again = cache.load_or_build(key, builder(calls), folder=tmp_path)
     assert len(calls) == 2 and cache.STATS.rejected == rejected + 1

@@ -159,7 +159,7 @@ def test_a_systematic_misfit_is_refused(monkeypatch):
     for f in frames:
         assert not identify(f.xy, cam, cat, sigma_px=0.2).success
         assert score_result(identify(f.xy, cam, cat, sigma_px=2.0), f) == "correct"
-    monkeypatch.setattr(verification, "_MISFIT_P", 0.0)
+    monkeypatch.setattr(verification, "MISFIT_P", 0.0)
     assert sum(identify(f.xy, cam, cat, sigma_px=0.2).success for f in frames) >= 10
 
 

@@ -29,8 +29,8 @@ from startracker.catalog import StarCatalog
 from startracker.color.camera import DEFAULT_RESPONSE, ChannelResponse
 from startracker.identify import IdentificationResult, StarDatabase, build_database
 from startracker.identify.frame import Frame, IdentifyOptions, prepare_frame
-from startracker.identify.pyramid import PairCandidates, smart_triads, triangles
-from startracker.identify.verification import Match, best_of, fast_rotation, triangle_false_rate, verify
+from startracker.identify.pyramid import CandidateFilter, identify_pyramid
+from startracker.identify.verification import Match
 from startracker.optics import Camera
 from startracker.validation import as_float_array
 
@@ -93,37 +93,6 @@ class ColorPruning:
         return self.pairs_kept / self.pairs_geometric if self.pairs_geometric else 1.0
 
 
-class _ColorPairCandidates(PairCandidates):
-    """Pair candidates of the pyramid, pruned by the two detections' colour ratios."""
-
-    def __init__(self, pairs, frame: Frame, star_ratio, det_ratio, det_tol, stats: ColorPruning):
-        super().__init__(pairs, frame)
-        self.star_ratio = star_ratio
-        self.det_ratio = det_ratio
-        self.det_tol = det_tol
-        self.stats = stats
-
-    def _ok(self, ids, det):
-        if not np.isfinite(self.det_ratio[det]):
-            return np.ones(len(ids), dtype=bool)
-        return np.abs(self.star_ratio[ids] - self.det_ratio[det]) <= self.det_tol[det]
-
-    def fetch(self, keys):
-        ang, tol = self.frame.angle_rad, self.frame.pair_tol_rad
-        first, second = self.pairs.first, self.pairs.second
-        for key in keys:
-            if key in self.cache:
-                continue
-            p, q = key
-            start, stop = self.pairs.range_one(float(ang[p, q]), float(tol[p, q]))
-            f, s = first[start:stop], second[start:stop]
-            ids_p, ids_q = np.concatenate([f, s]), np.concatenate([s, f])
-            ok = self._ok(ids_p, p) & self._ok(ids_q, q)
-            self.stats.pairs_geometric += len(ids_p)
-            self.stats.pairs_kept += int(ok.sum())
-            self.cache[key] = (ids_p[ok], ids_q[ok])
-
-
 def _pass_rate(srt, det_ratio, det_tol) -> np.ndarray:
     """Fraction of navigation stars (sorted ratios ``srt``) whose colour passes each detection's window, (n,)."""
     out = np.ones(len(det_ratio))
@@ -134,66 +103,20 @@ def _pass_rate(srt, det_ratio, det_tol) -> np.ndarray:
     return out
 
 
-def _confirm_fourth(db, frame: Frame, det3, hyp: np.ndarray, rest: np.ndarray):
-    """Which hypotheses have a fourth detection pointing at a catalog star under the triad attitude.
-
-    (H,) bool and the triad attitudes (H, 3, 3); one k-d tree query for all hypotheses and candidates.
-    """
-    rot = fast_rotation(frame.v[list(det3)][None], db.nav.vectors[hyp])
-    if len(rest) == 0:
-        return np.zeros(len(hyp), dtype=bool), rot
-    w = (rot @ frame.v[rest].T).transpose(0, 2, 1).reshape(-1, 3)
-    reach = 2.0 * float(frame.pair_tol_rad[det3[0], rest].max())
-    dist, _ = db.tree.query(w, k=1, distance_upper_bound=2 * np.sin(reach / 2))
-    return np.isfinite(dist).reshape(len(hyp), len(rest)).any(axis=1), rot
-
-
 def _pyramid_color(cdb: ColorDatabase, frame: Frame, opts: IdentifyOptions, det_ratio, det_tol,
                    stats: ColorPruning) -> tuple[Match | None, str, int]:
-    """The pyramid of :func:`startracker.identify.pyramid.identify_pyramid` (Mortari's smart triads, apex
-    opposite the widest window, a fourth star, the common verification) with colour-pruned pair windows
-    and λ. Only the stable public pieces of :mod:`startracker.identify` are used."""
-    db = cdb.db
-    n = frame.n
-    pool = min(n, opts.max_stars or 12)
-    order = np.arange(min(n, max(pool, 4)))
-    cands = _ColorPairCandidates(db.pairs, frame, cdb.star_ratio, det_ratio, det_tol, stats)
-    rate = _pass_rate(cdb.sorted_ratio, det_ratio, det_tol)
-    n_stars = float(db.n_stars)
-    n_hyp = 0
-    ambiguous = False
-    for t, (i, j, k) in enumerate(smart_triads(pool)):
-        if t >= opts.max_triads:
-            break
-        cands.fetch([(i, j), (i, k), (j, k)])
-        c_ij, c_ik, c_jk = cands.count(i, j), cands.count(i, k), cands.count(j, k)
-        if c_ij >= c_ik and c_ij >= c_jk:
-            i, j, k = k, i, j
-        elif c_ik >= c_jk:
-            i, j, k = j, i, k
-        hyp = triangles(db, frame, cands, i, j, k)
-        if len(hyp) == 0:
-            continue
-        rest = np.delete(order, (i, j, k))
-        ok, rot = _confirm_fourth(db, frame, (i, j, k), hyp, rest)
-        if n > 3:
-            hyp, rot = hyp[ok], rot[ok]
-        if len(hyp) == 0:
-            continue
-        lam = triangle_false_rate(frame, i, j, k, n_stars, db.clumping3) * rate[i] * rate[j] * rate[k]
-        matches = []
-        for h in range(len(hyp)):
-            n_hyp += 1
-            m = verify(db, frame, np.array([i, j, k]), hyp[h], lam, opts.false_alarm, rot=rot[h])
-            if m is not None:
-                matches.append(m)
-        best, status = best_of(matches, frame.match_tol_rad)
-        if best is not None:
-            return best, "ok", n_hyp
-        ambiguous |= status.startswith("ambiguous")
-    if ambiguous:
-        return None, "ambiguous: two different attitudes verified", n_hyp
-    return None, "no triad was confirmed and verified", n_hyp
+    """The pyramid of :func:`startracker.identify.pyramid.identify_pyramid` with its candidate source
+    narrowed by colour: detection ``p`` may only be a star whose expected ratio lies within ``det_tol[p]``
+    of ``det_ratio[p]`` (any star where the ratio is NaN), and ``λ`` scaled by the colour pass rates."""
+    known = np.isfinite(det_ratio)
+    lo = np.where(known, det_ratio - det_tol, -np.inf)
+    hi = np.where(known, det_ratio + det_tol, np.inf)
+    cands = CandidateFilter(star_key=cdb.star_ratio, lo=lo, hi=hi,
+                            false_rate_scale=_pass_rate(cdb.sorted_ratio, det_ratio, det_tol))
+    match, status, n_hyp = identify_pyramid(cdb.db, frame, opts, candidates=cands)
+    stats.pairs_geometric += cands.pairs_geometric
+    stats.pairs_kept += cands.pairs_kept
+    return match, status, n_hyp
 
 
 def identify_color(xy, camera: Camera, catalog: StarCatalog, color_ratio, color_sigma=0.1, intensities=None,
@@ -291,8 +214,7 @@ def identify_color(xy, camera: Camera, catalog: StarCatalog, color_ratio, color_
     match, status, n_hyp = _pyramid_color(database, frame, opts, det_ratio, det_tol, stats)
     if match is None and fallback:
         method = "pyramid+color:fallback"
-        none = np.full(frame.n, np.nan)
-        match, status, n_hyp2 = _pyramid_color(database, frame, opts, none, det_tol, ColorPruning())
+        match, status, n_hyp2 = identify_pyramid(db, frame, opts)
         n_hyp += n_hyp2
     if match is None:
         return failure(status, n_hyp=n_hyp, method=method)

@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from startracker.attitude import RAD_TO_ARCSEC, solve_wahba_single
+from startracker.attitude import RAD_TO_ARCSEC
 from startracker.catalog import StarCatalog
 from startracker.identify.brightness import identify_brightness
 from startracker.identify.database import StarDatabase, build_database, clear_database_cache, default_database
@@ -31,6 +31,7 @@ from startracker.identify.pattern_string import identify_pattern_string
 from startracker.identify.pyramid import identify_pyramid
 from startracker.identify.result import IdentificationResult
 from startracker.identify.voting import identify_voting
+from startracker.kernels.identify import solve_attitude
 from startracker.optics import Camera
 
 __all__ = [
@@ -159,21 +160,23 @@ def identify(
     match, status, n_hyp = METHODS[method](database, frame, opts)
     if match is None:
         return failure(status, n_hyp=n_hyp)
-    v_ref = database.nav.vectors[match.nav]
-    sol = solve_wahba_single(frame.v[match.det], v_ref, sigma_rad=frame.sigma_rad)
-    if not sol.success or sol.residual_rms_arcsec > frame.match_tol_rad * RAD_TO_ARCSEC:
-        return failure(f"final attitude rejected: {sol.status}", match.n_required, n_hyp)
+    # Final least squares on every match (compiled; the same solution as solve_wahba_single).
+    ok, q, rms_rad, cov = solve_attitude(frame.v[match.det], database.nav.vectors[match.nav], frame.sigma_rad)
+    if not ok:
+        return failure("final attitude rejected: vectors are parallel: attitude not observable", match.n_required, n_hyp)
+    if rms_rad > frame.match_tol_rad:
+        return failure("final attitude rejected: residual above the verification radius", match.n_required, n_hyp)
     star_ids[frame.index[match.det]] = database.nav.hip[match.nav]
     return IdentificationResult(
         success=True,
         star_ids=star_ids,
-        q_cam_to_icrs=sol.q_meas_to_ref,
+        q_cam_to_icrs=q,
         n_matched=int(match.n_matched),
-        residual_arcsec=float(sol.residual_rms_arcsec),
+        residual_arcsec=float(rms_rad * RAD_TO_ARCSEC),
         latency_ms=(time.perf_counter() - t0) * 1e3,
         status="ok",
         method=method,
         n_required=int(match.n_required),
         n_hypotheses=int(n_hyp),
-        covariance_rad2=sol.covariance_rad2,
+        covariance_rad2=cov,
     )

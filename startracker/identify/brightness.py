@@ -28,7 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from startracker.identify.frame import Frame, IdentifyOptions
-from startracker.identify.pyramid import _join, triangles
+from startracker.identify.pairs import join_equal
+from startracker.identify.pyramid import triangles
 from startracker.identify.verification import Match, best_of, triangle_false_rate, verify
 
 __all__ = ["identify_brightness", "OrderedCandidates"]
@@ -132,7 +133,7 @@ def _four_star_mode(db, frame, opts, n, matches_out):
                         tri = triangles(db, frame, cands, i, j, k)  # checks δ_jk (and handedness)
                     if len(tri) == 0:
                         break
-                    ti, li = _join(tri[:, 0], a_l)
+                    ti, li = join_equal(tri[:, 0], a_l)
                     if len(ti) == 0:
                         continue
                     b, c, d = tri[ti, 1], tri[ti, 2], d_l[li]

@@ -6,10 +6,17 @@ paper 002 on the k-vector (pairs closer than the FOV diagonal), the reference-st
 main-star pattern strings of paper 003 and a k-d tree for verification, and measures the catalog's
 clumping for the false-alarm rule. The result is cached per (catalog object, camera, build options), so
 ``identify()`` without ``database=`` builds it on the first call only.
+
+Disk cache. The arrays of a database are also stored on disk with :mod:`startracker.cache` (one ``.npz``
+per catalog content, camera and build options, atomic, checksummed, no pickle), so a later process
+loads them instead of rebuilding: the k-d tree and the sky grid are rebuilt from the stored navigation
+stars at load (about a millisecond). A corrupt or stale file is rebuilt, never trusted.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import math
 import time
 import weakref
@@ -18,12 +25,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from startracker import cache as disk_cache
 from startracker.catalog import StarCatalog, select_navigation_stars
+from startracker.kernels.identify import GRID_CELLS, build_sky_grid
 from startracker.identify.pairs import StarPairCatalog, build_pair_catalog
+from startracker.kvector import KVector
 from startracker.identify.pattern_string import PatternCatalog, build_pattern_catalog
 from startracker.optics import Camera
 
-__all__ = ["StarDatabase", "build_database", "clear_database_cache", "default_database"]
+__all__ = ["StarDatabase", "build_database", "clear_database_cache", "default_database", "database_key",
+           "database_arrays", "database_from_arrays", "catalog_digest", "DISK_FORMAT"]
 
 _CACHE: "weakref.WeakKeyDictionary[StarCatalog, dict]" = weakref.WeakKeyDictionary()
 _LAST: list = []  # [weakref(catalog), camera, database] of the last default look-up
@@ -55,6 +66,15 @@ class StarDatabase:
         Wall-clock build time.
     options : dict
         The build options.
+    grid_start, grid_stars : ndarray of int64
+        Sky grid of the navigation stars (:func:`startracker.kernels.identify.build_sky_grid`), the
+        compiled kernels' nearest-star index.
+    grid_cells : int
+        Cells per axis of the sky grid.
+    source : str
+        ``"built"`` in this process or ``"disk"`` (loaded from the disk cache).
+    load_time_s : float
+        Wall-clock time of the disk load (0 when built).
     """
 
     camera: Camera
@@ -68,6 +88,11 @@ class StarDatabase:
     density_eff_per_sr: float
     build_time_s: float
     options: dict
+    grid_start: np.ndarray
+    grid_stars: np.ndarray
+    grid_cells: int = GRID_CELLS
+    source: str = "built"
+    load_time_s: float = 0.0
 
     @property
     def n_stars(self) -> int:
@@ -81,6 +106,7 @@ class StarDatabase:
         total += self.pairs.nbytes + (self.ref_pairs.nbytes if self.ref_pairs is not None else 0)
         total += self.patterns.nbytes
         total += self.tree.data.nbytes + self.tree.indices.nbytes
+        total += self.grid_start.nbytes + self.grid_stars.nbytes
         return int(total)
 
     @property
@@ -140,6 +166,7 @@ def build_database(
     guide_mag_limit: float | None = None,
     guide_min_separation_deg: float = 0.0,
     cache: bool = True,
+    disk_folder=None,
 ) -> StarDatabase:
     """Build (or fetch from the cache) the identification database for a catalog and a camera.
 
@@ -161,7 +188,10 @@ def build_database(
         Paper 003 keeps only guide stars more than 3° from a brighter one; 0 (default) keeps all, which
         suits images that contain every star down to the catalog limit.
     cache : bool
-        Reuse a database built earlier for the same catalog object, camera and options.
+        Reuse a database built earlier for the same catalog object, camera and options (in memory).
+    disk_folder : path-like or False, optional
+        Folder of the disk cache (default :func:`startracker.cache.cache_dir`: ``$STARTRACKER_CACHE_DIR``,
+        else ``$XDG_CACHE_HOME/startracker-gym``, else ``~/.cache/startracker-gym``); False: no disk cache.
 
     Returns
     -------
@@ -192,6 +222,36 @@ def build_database(
             return hit
 
     t0 = time.perf_counter()
+    disk = disk_cache.cache_dir() if disk_folder is None else disk_folder
+    if disk_folder is False:
+        disk = None
+    if disk is None:
+        db = _build(catalog, camera, options)
+    else:
+        built: list = []
+
+        def build_arrays():
+            built.append(_build(catalog, camera, options))
+            return database_arrays(built[0])
+
+        arrays = disk_cache.load_or_build(database_key(catalog, camera, options), build_arrays, folder=disk)
+        if built:
+            db = built[0]
+        else:
+            db = database_from_arrays(arrays, camera, options)
+            db = dataclasses.replace(db, load_time_s=time.perf_counter() - t0)
+    if cache:
+        _CACHE.setdefault(catalog, {})[key] = db
+    return db
+
+
+def _build(catalog: StarCatalog, camera: Camera, options: dict) -> StarDatabase:
+    mag_limit = options["mag_limit"]
+    min_separation_px = options["min_separation_px"]
+    ref_mag_limit = options["ref_mag_limit"]
+    guide_mag_limit = options["guide_mag_limit"]
+    guide_min_separation_deg = options["guide_min_separation_deg"]
+    t0 = time.perf_counter()
     pix_rad = camera.pixel_size_mm / camera.focal_length_mm
     nav = select_navigation_stars(catalog, mag_limit=mag_limit, min_separation_rad=min_separation_px * pix_rad)
     # Corner to corner, with room for distortion and the aberration widening of windows.
@@ -207,6 +267,7 @@ def build_database(
         guide_mask = np.isin(nav.hip, kept.hip)
     patterns = build_pattern_catalog(pairs, guide_mask, theta_max)
     clumping, dens = _density_moments(tree, len(nav), max(camera.half_fov_rad))
+    grid_start, grid_stars = build_sky_grid(nav.vectors)
     db = StarDatabase(
         camera=camera,
         nav=nav,
@@ -219,10 +280,106 @@ def build_database(
         density_eff_per_sr=dens,
         build_time_s=time.perf_counter() - t0,
         options=options,
+        grid_start=grid_start,
+        grid_stars=grid_stars,
     )
-    if cache:
-        _CACHE.setdefault(catalog, {})[key] = db
     return db
+
+
+DISK_FORMAT = 2  # version of the stored arrays; bump when their layout or the build changes
+
+
+def catalog_digest(catalog: StarCatalog) -> str:
+    """SHA-256 of a catalog's content (HIP numbers, directions, magnitudes, colours, epoch)."""
+    h = hashlib.sha256()
+    for a in (catalog.hip, catalog.vectors, catalog.vmag, catalog.bv):
+        a = np.ascontiguousarray(a)
+        h.update(str(a.dtype).encode() + str(a.shape).encode())
+        h.update(a.tobytes())
+    h.update(repr(float(getattr(catalog, "epoch", 0.0))).encode())
+    return h.hexdigest()
+
+
+def database_key(catalog: StarCatalog, camera: Camera, options: dict) -> dict:
+    """Disk-cache key of a database: everything it depends on, with the format version."""
+    cam = {f.name: getattr(camera, f.name) for f in dataclasses.fields(camera) if f.init and f.name != "name"}
+    return {
+        "kind": "identify-database",
+        "format": DISK_FORMAT,
+        "grid_cells": GRID_CELLS,
+        "catalog": catalog_digest(catalog),
+        "camera": {k: (list(v) if isinstance(v, tuple) else v) for k, v in cam.items()},
+        "options": options,
+    }
+
+
+def _pairs_arrays(prefix: str, p: StarPairCatalog | None, out: dict) -> None:
+    if p is None or p.kvector is None:
+        return
+    kv = p.kvector
+    out[prefix + "first"] = p.first
+    out[prefix + "second"] = p.second
+    out[prefix + "angle"] = kv.sorted_values
+    out[prefix + "k"] = kv.k.astype(np.int64, copy=False)
+    out[prefix + "line"] = np.array([kv.a1, kv.b1, p.max_angle_rad])
+
+
+def _pairs_from(prefix: str, arrays: dict, vmag: np.ndarray, max_angle: float) -> StarPairCatalog | None:
+    if prefix + "first" not in arrays:
+        if prefix == "pairs_":
+            e = np.empty(0, dtype=np.int32)
+            f = np.empty(0, dtype=np.float32)
+            return StarPairCatalog(first=e, second=e.copy(), first_mag=f, second_mag=f.copy(), kvector=None,
+                                   max_angle_rad=max_angle)
+        return None
+    first, second = arrays[prefix + "first"], arrays[prefix + "second"]
+    a1, b1, max_angle_rad = arrays[prefix + "line"].tolist()
+    kv = KVector.from_arrays(arrays[prefix + "angle"], None, arrays[prefix + "k"], a1, b1)
+    vmag32 = vmag.astype(np.float32)
+    return StarPairCatalog(first=first, second=second, first_mag=vmag32[first], second_mag=vmag32[second],
+                           kvector=kv, max_angle_rad=max_angle_rad)
+
+
+def database_arrays(db: StarDatabase) -> dict:
+    """The arrays that define a database (what the disk cache stores)."""
+    nav = db.nav
+    pc = db.patterns
+    out = {
+        "nav_hip": nav.hip,
+        "nav_vectors": nav.vectors,
+        "nav_vmag": nav.vmag,
+        "nav_bv": nav.bv,
+        "nav_epoch": np.array(float(getattr(nav, "epoch", 0.0))),
+        "stats": np.array([db.clumping3, db.density_eff_per_sr, db.build_time_s, db.pairs.max_angle_rad,
+                           db.ref_mag_limit]),
+        "pat_guide": pc.guide,
+        "pat_length": pc.length,
+        "pat_codes": pc.codes,
+        "pat_neighbour": pc.neighbour,
+        "pat_below": pc.below,
+        "pat_theta_max": np.array(pc.theta_max_rad),
+    }
+    _pairs_arrays("pairs_", db.pairs, out)
+    _pairs_arrays("ref_", db.ref_pairs, out)
+    return out
+
+
+def database_from_arrays(arrays: dict, camera: Camera, options: dict, load_time_s: float = 0.0) -> StarDatabase:
+    """A database from :func:`database_arrays` (the k-d tree and the sky grid are rebuilt)."""
+    nav = StarCatalog(hip=arrays["nav_hip"], vectors=arrays["nav_vectors"], vmag=arrays["nav_vmag"],
+                      bv=arrays["nav_bv"], epoch=float(arrays["nav_epoch"]))
+    clumping, dens, build_s, max_angle, ref_lim = arrays["stats"].tolist()
+    pairs = _pairs_from("pairs_", arrays, nav.vmag, max_angle)
+    ref_pairs = _pairs_from("ref_", arrays, nav.vmag, max_angle)
+    patterns = PatternCatalog(guide=arrays["pat_guide"], length=arrays["pat_length"], codes=arrays["pat_codes"],
+                              neighbour=arrays["pat_neighbour"], below=arrays["pat_below"],
+                              theta_max_rad=float(arrays["pat_theta_max"]))
+    grid_start, grid_stars = build_sky_grid(nav.vectors)
+    return StarDatabase(
+        camera=camera, nav=nav, tree=cKDTree(nav.vectors.reshape(-1, 3)), pairs=pairs, ref_pairs=ref_pairs,
+        ref_mag_limit=float(ref_lim), patterns=patterns, clumping3=float(clumping), density_eff_per_sr=float(dens),
+        build_time_s=float(build_s), options=dict(options), grid_start=grid_start, grid_stars=grid_stars,
+        source="disk", load_time_s=float(load_time_s))
 
 
 def default_database(catalog: StarCatalog, camera: Camera) -> StarDatabase:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from startracker.kernels.identify import frame_tables
 from startracker.optics import Camera
 from startracker.validation import as_float_array
 
@@ -200,24 +201,22 @@ def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angl
         order = np.arange(k)
         mag_all = None
     w, h = camera.resolution
-    on = np.all((xy >= -0.5) & (xy <= (w - 0.5, h - 0.5)), axis=1)
+    x, y = xy[:, 0], xy[:, 1]
+    on = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5)
     if not on.all():
         order = order[on[order]]
     v = camera.unproject(xy[order]) if len(order) else np.empty((0, 3))
     pix_rad = camera.pixel_size_mm / camera.focal_length_mm
     sigma_rad = opts.sigma_px * pix_rad
     floor = opts.floor_arcsec * ARCSEC
-    cosm = v @ v.T
-    # Duplicates (closer than a tenth of the noise or 0.05 px): keep the brighter.
+    # Duplicates (closer than a tenth of the noise or 0.05 px): keep the brighter. Tables compiled.
     dup_rad = max(0.1 * sigma_rad, 0.05 * pix_rad)
-    if len(v) > 1 and np.count_nonzero(cosm > np.cos(dup_rad)) > len(v):
-        dup = np.triu(cosm > np.cos(dup_rad), 1).any(axis=0)
-        keep = ~dup
-        order, v, cosm = order[keep], v[keep], cosm[np.ix_(keep, keep)]
-    m = len(v) if n_angles is None else min(len(v), n_angles)
-    ang = np.arccos(np.clip(cosm[:m, :m], -1.0, 1.0))
+    n_tab = len(v) if n_angles is None else int(n_angles)
+    keep, ang, pair_tol = frame_tables(np.ascontiguousarray(v), n_tab, float(np.cos(dup_rad)),
+                                       opts.pair_sigmas * np.sqrt(2.0) * sigma_rad, floor, opts.aberration_scale)
+    if not keep.all():
+        order, v = order[keep], v[keep]
     n_dropped = k - len(order)
-    pair_tol = np.hypot(opts.pair_sigmas * np.sqrt(2.0) * sigma_rad, floor) + opts.aberration_scale * ang
     match_tol = float(np.hypot(opts.match_sigmas * sigma_rad, floor))
     return Frame(
         v=v,

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from startracker.kvector import KVector
 
-__all__ = ["StarPairCatalog", "build_pair_catalog"]
+__all__ = ["StarPairCatalog", "build_pair_catalog", "expand_ranges", "join_equal"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,6 +149,37 @@ def expand_ranges(start: np.ndarray, stop: np.ndarray) -> tuple[np.ndarray, np.n
     qidx = np.repeat(np.arange(len(start)), counts)
     offsets = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
     return qidx, np.repeat(start, counts) + offsets
+
+
+def join_equal(a_left: np.ndarray, a_right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All index pairs (l, r) with ``a_left[l] == a_right[r]`` (vectorised sort join).
+
+    Parameters
+    ----------
+    a_left, a_right : ndarray of int, shape (L,) and (R,)
+        Star indices (e.g. the candidates of one detection from two pair windows).
+
+    Returns
+    -------
+    li, ri : ndarray of int, shape (P,)
+    """
+    if len(a_left) == 0 or len(a_right) == 0:
+        e = np.empty(0, dtype=np.int64)
+        return e, e
+    key = a_right.astype(np.int16) if a_right.max() < 32768 else a_right  # int16 sorts by radix
+    o = np.argsort(key, kind="stable")
+    srt = a_right[o]
+    lo = np.searchsorted(srt, a_left, side="left")
+    hi = np.searchsorted(srt, a_left, side="right")
+    cnt = hi - lo
+    total = int(cnt.sum())
+    if total == 0:
+        e = np.empty(0, dtype=np.int64)
+        return e, e
+    li = np.repeat(np.arange(len(a_left)), cnt)
+    offs = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    ri = o[np.repeat(lo, cnt) + offs]
+    return li, ri
 
 
 def build_pair_catalog(vectors: np.ndarray, vmag: np.ndarray, max_angle_rad: float) -> StarPairCatalog:

@@ -283,6 +283,12 @@ def identify_pattern_string(db, frame: Frame, opts: IdentifyOptions) -> tuple[Ma
             nav = np.concatenate([[cat.guide[rows[r]]], nav_nb])
             n_hyp += 1
             lam = triangle_false_rate(frame, det[0], det[1], det[2], n_stars, db.clumping3)
+            # A string match fixes the sides from the main star only to the code tolerance (±1.5 levels)
+            # and the third side to the roll tolerance, far looser than the pair windows λ assumes;
+            # and every candidate tried so far was a chance to be fooled (union bound).
+            t3 = frame.pair_tol_rad[det[0], det[1]] * frame.pair_tol_rad[det[0], det[2]] * frame.pair_tol_rad[det[1], det[2]]
+            loose = (1.5 * cat.level_rad) ** 2 * tol
+            lam *= max(1.0, loose / t3) * n_hyp
             mt = verify(db, frame, det, nav, lam, opts.false_alarm)
             if mt is not None:
                 matches.append(mt)

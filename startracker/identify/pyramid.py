@@ -5,11 +5,18 @@ three indices as fast as possible so that a false star does not spoil a long run
 
     for dj in 1 .. n-2:  for dk in 1 .. n-dj-1:  for i in 1 .. n-dj-dk:   (i, i+dj, i+dj+dk)
 
-For each triad the three inter-star angles are looked up in the star-pair catalog with the k-vector;
+Within blocks of ten triads of that order the cheapest are tried first (the cost of a triad is the size
+of its two shortest pair windows: short sides have few catalog pairs). For each triad the three
+inter-star angles are looked up in the star-pair catalog with the k-vector;
 the catalog triangles consistent with all three (and with the measured handedness) are the hypotheses.
 A hypothesis needs a fourth detection ``r`` whose catalog star has the right angles to all three
 (the pyramid); then the common verification decides, and reporting failure is preferred to a
 low-confidence answer (two different verified attitudes make the frame ambiguous).
+
+The loop runs compiled (:func:`startracker.kernels.identify.pyramid_search`); the numpy pieces
+(:class:`PairCandidates`, :func:`triangles`, :func:`confirm_fourth`) serve the brightness-referenced
+method and as the reference the kernel is tested against. :class:`CandidateFilter` makes the candidate
+source injectable (colour-aided identification).
 """
 
 from __future__ import annotations
@@ -18,10 +25,16 @@ import math
 
 import numpy as np
 
-from startracker.identify.frame import Frame, IdentifyOptions
-from startracker.identify.verification import Match, best_of, fast_rotation, select_matches, triangle_false_rate, verify
+from dataclasses import dataclass
+from functools import lru_cache
 
-__all__ = ["smart_triads", "identify_pyramid", "PairCandidates", "triangles", "confirm_fourth"]
+from startracker.identify.frame import Frame, IdentifyOptions
+from startracker.identify.pairs import join_equal
+from startracker.identify import verification
+from startracker.identify.verification import Match, fast_rotation, select_matches
+from startracker.kernels.identify import pyramid_search
+
+__all__ = ["smart_triads", "identify_pyramid", "PairCandidates", "triangles", "confirm_fourth", "CandidateFilter"]
 
 
 def smart_triads(n: int):
@@ -70,27 +83,6 @@ class PairCandidates:
         return len(self.get(p, q)[0])
 
 
-def _join(a_left: np.ndarray, a_right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """All index pairs (l, r) with ``a_left[l] == a_right[r]`` (vectorised sort join)."""
-    if len(a_left) == 0 or len(a_right) == 0:
-        e = np.empty(0, dtype=np.int64)
-        return e, e
-    key = a_right.astype(np.int16) if a_right.max() < 32768 else a_right  # int16 sorts by radix
-    o = np.argsort(key, kind="stable")
-    srt = a_right[o]
-    lo = np.searchsorted(srt, a_left, side="left")
-    hi = np.searchsorted(srt, a_left, side="right")
-    cnt = hi - lo
-    total = int(cnt.sum())
-    if total == 0:
-        e = np.empty(0, dtype=np.int64)
-        return e, e
-    li = np.repeat(np.arange(len(a_left)), cnt)
-    offs = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    ri = o[np.repeat(lo, cnt) + offs]
-    return li, ri
-
-
 def _cross(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Row-wise cross product of (M, 3) arrays (cheaper than numpy.cross for small M)."""
     return np.column_stack(
@@ -124,7 +116,7 @@ def triangles(db, frame: Frame, cands, i: int, j: int, k: int) -> np.ndarray:
     k1 = mark[ai] == 3
     k2 = mark[ai2] == 3
     ai, bj, ai2, ck = ai[k1], bj[k1], ai2[k2], ck[k2]
-    li, ri = _join(ai, ai2)
+    li, ri = join_equal(ai, ai2)
     if len(li) == 0:
         return empty
     a, b, c = ai[li], bj[li], ck[ri]
@@ -185,44 +177,89 @@ def confirm_fourth(db, frame: Frame, det3, hyp: np.ndarray, pool: int):
     return ok, rot, first
 
 
-def identify_pyramid(db, frame: Frame, opts: IdentifyOptions) -> tuple[Match | None, str, int]:
-    """Pyramid identification; returns (match, status, hypotheses verified)."""
+@lru_cache(maxsize=64)
+def triad_table(pool: int, max_triads: int) -> np.ndarray:
+    """The first ``max_triads`` smart triads over ``pool`` stars, (T, 3) int64 (read-only, cached)."""
+    out = np.array(list(smart_triads(pool))[:max_triads], dtype=np.int64).reshape(-1, 3)
+    out.setflags(write=False)
+    return out
+
+
+@dataclass
+class CandidateFilter:
+    """The pyramid's candidate source, narrowed by one more per-star feature (e.g. the colour ratio).
+
+    The pyramid's candidates for a detection pair are the catalog pairs in the k-vector window of their
+    angle; with a filter, detection ``p`` may only stand for navigation stars ``s`` with
+    ``lo[p] <= star_key[s] <= hi[p]`` (an infinite interval admits every star), and the expected number
+    of wrong triangles ``λ`` of detections ``(i, j, k)`` is multiplied by ``false_rate_scale[i] ·
+    false_rate_scale[j] · false_rate_scale[k]`` (the fraction of the catalog each detection admits), so
+    the false-alarm rule keeps its meaning.
+
+    Attributes
+    ----------
+    star_key : ndarray, shape (N,)
+        Feature of each navigation star.
+    lo, hi : ndarray, shape (n,)
+        Admissible interval of each usable detection (frame order).
+    false_rate_scale : ndarray, shape (n,)
+        Fraction of the navigation stars each detection admits (1 without the feature).
+    pairs_geometric, pairs_kept : int
+        Filled by :func:`identify_pyramid`: catalog pair candidates (both orientations) in the windows
+        looked up, and those the filter kept.
+    """
+
+    star_key: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    false_rate_scale: np.ndarray
+    pairs_geometric: int = 0
+    pairs_kept: int = 0
+
+
+_NO_KEY = np.zeros(1)
+CHEAP_FIRST = 10  # triads are tried cheapest first within blocks of this many (smart order across blocks)
+
+
+def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
+                     candidates: CandidateFilter | None = None) -> tuple[Match | None, str, int]:
+    """Pyramid identification; returns (match, status, hypotheses verified).
+
+    The whole loop (triads, pair windows, triangles, the fourth star, verification, the ambiguity rule)
+    runs in :func:`startracker.kernels.identify.pyramid_search`.
+
+    Parameters
+    ----------
+    db : StarDatabase
+    frame : Frame
+    opts : IdentifyOptions
+    candidates : CandidateFilter, optional
+        Narrows the candidate source (a method with one more per-star feature); None: angles only.
+    """
     n = frame.n
     if n < 3:
         return None, "fewer than 3 usable detections", 0
     pool = min(n, opts.max_stars or 12, len(frame.angle_rad))
-    cands = PairCandidates(db.pairs, frame)
-    n_stars = float(db.n_stars)
-    n_hyp = 0
-    ambiguous = False
-    for t, (i, j, k) in enumerate(smart_triads(pool)):
-        if t >= opts.max_triads:
-            break
-        cands.fetch([(i, j), (i, k), (j, k)])
-        # Apex opposite the widest window: the join then runs on the two shortest candidate lists.
-        c_ij, c_ik, c_jk = cands.count(i, j), cands.count(i, k), cands.count(j, k)
-        if c_ij >= c_ik and c_ij >= c_jk:
-            i, j, k = k, i, j
-        elif c_ik >= c_jk:
-            i, j, k = j, i, k
-        hyp = triangles(db, frame, cands, i, j, k)
-        if len(hyp) == 0:
-            continue
-        ok, rot, first = confirm_fourth(db, frame, (i, j, k), hyp, max(pool, 4))
-        if n == 3:
-            ok[:] = True  # no fourth star exists: the false-alarm rule alone decides
-            first = [None] * len(hyp)
-        lam = triangle_false_rate(frame, i, j, k, n_stars, db.clumping3)
-        matches = []
-        for h in np.flatnonzero(ok):  # hypotheses that survived the pyramid: a handful
-            n_hyp += 1
-            m = verify(db, frame, np.array([i, j, k]), hyp[h], lam, opts.false_alarm, rot=rot[h], first=first[h])
-            if m is not None:
-                matches.append(m)
-        best, status = best_of(matches, frame.match_tol_rad)
-        if best is not None:
-            return best, "ok", n_hyp
-        ambiguous |= status.startswith("ambiguous")
-    if ambiguous:
-        return None, "ambiguous: two different attitudes verified", n_hyp
-    return None, "no triad was confirmed and verified", n_hyp
+    triads = triad_table(pool, opts.max_triads)
+    kv = db.pairs.kvector
+    if candidates is None:
+        key, lo, hi, rate, filtered = _NO_KEY, _NO_KEY, _NO_KEY, np.ones(n), False
+    else:
+        key = np.ascontiguousarray(candidates.star_key, dtype=np.float64)
+        lo = np.ascontiguousarray(candidates.lo, dtype=np.float64)
+        hi = np.ascontiguousarray(candidates.hi, dtype=np.float64)
+        rate = np.ascontiguousarray(candidates.false_rate_scale, dtype=np.float64)
+        filtered = True
+    status, det, nav, n_req, n_hyp, rot, rms, counts = pyramid_search(
+        frame.v, frame.angle_rad, frame.pair_tol_rad, triads, CHEAP_FIRST, pool, db.nav.vectors, kv.sorted_values, kv.k,
+        kv.a1, kv.b1, db.pairs.first, db.pairs.second, db.grid_start, db.grid_stars, db.grid_cells, key, lo, hi,
+        filtered, rate, db.clumping3, db.density_eff_per_sr, frame.match_tol_rad, opts.false_alarm,
+        verification.MAX_ROUNDS, verification.STABLE_FIT, verification.MISFIT_P)
+    if candidates is not None:
+        candidates.pairs_geometric += int(counts[0])
+        candidates.pairs_kept += int(counts[1])
+    if status == 0:
+        return Match(rot=rot, det=det, nav=nav, n_required=int(n_req), rms_rad=float(rms)), "ok", int(n_hyp)
+    if status == 1:
+        return None, "ambiguous: two different attitudes verified", int(n_hyp)
+    return None, "no triad was confirmed and verified", int(n_hyp)

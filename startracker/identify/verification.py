@@ -36,10 +36,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from startracker.identify.frame import Frame
+from startracker.kernels.identify import verify_hypothesis
 
-_MAX_ROUNDS = 8
-_STABLE_FIT = 10  # matches above which a refit that only adds matches ends the refinement
-_MISFIT_P = 1e-3  # near misses less likely than this under a correct attitude reject it
+MAX_ROUNDS = 8  # refinement rounds of the verification
+STABLE_FIT = 10  # matches above which a refit that only adds matches ends the refinement
+MISFIT_P = 1e-3  # near misses less likely than this under a correct attitude reject it
+_EYE = np.eye(3)
 
 __all__ = ["Match", "fast_rotation", "triangle_false_rate", "required_matches", "verify", "match_detections", "select_matches", "best_of"]
 
@@ -241,50 +243,21 @@ def verify(db, frame: Frame, det_idx, nav_idx, lam: float, false_alarm: float, r
     rot : ndarray, shape (3, 3), optional
         The hypothesis attitude if already computed.
     first : (det, nav), optional
-        The matches under ``rot`` if already computed (:func:`select_matches`).
+        Ignored (kept for callers that computed the first matches; the compiled verification
+        recomputes them under ``rot``, with the same result).
+
+    The loop runs in :func:`startracker.kernels.identify.verify_hypothesis`.
     """
-    nav_vec = db.nav.vectors
-    if rot is None:
-        rot = fast_rotation(frame.v[det_idx], nav_vec[nav_idx])
-    tol = frame.match_tol_rad
-    n_req = required_matches(lam, frame.n, db.p_random(tol), false_alarm)
-    if n_req > frame.n:
+    det0 = np.ascontiguousarray(det_idx, dtype=np.int64)
+    nav0 = np.ascontiguousarray(nav_idx, dtype=np.int64)
+    have_rot = rot is not None
+    rot0 = np.ascontiguousarray(rot, dtype=np.float64) if have_rot else _EYE
+    ok, rot_v, det, nav, n_req, rms = verify_hypothesis(
+        frame.v, db.nav.vectors, db.grid_start, db.grid_stars, db.grid_cells, det0, nav0, rot0, have_rot, lam,
+        false_alarm, frame.match_tol_rad, db.density_eff_per_sr, MAX_ROUNDS, STABLE_FIT, MISFIT_P)
+    if not ok:
         return None
-    det, nav = first[:2] if first is not None else match_detections(db, frame.v @ rot.T, tol)[:2]
-    if len(det) < n_req:
-        return None
-    # Refit on every match and match again until the matches stop changing: the attitude of a thin
-    # triad can be off by many pixels far from it, and its first matches may include a wrong neighbour.
-    chord = 2.0 * math.sin(tol / 2.0)
-    for _ in range(_MAX_ROUNDS):
-        rot = fast_rotation(frame.v[det], nav_vec[nav])
-        raw, idx = db.tree.query(frame.v @ rot.T, k=2, distance_upper_bound=3.0 * chord)
-        det2, nav2, dist = select_matches(raw, idx, chord)
-        if len(det2) < n_req:
-            return None
-        if len(det2) == len(det) and np.array_equal(det2, det) and np.array_equal(nav2, nav):
-            break
-        # Stable enough: an attitude fitted on many stars that keeps every match and adds only a few.
-        grown = False
-        if len(det) >= _STABLE_FIT and len(det2) - len(det) <= max(2, len(det) // 10):
-            kept = np.isin(det2, det)
-            grown = int(kept.sum()) == len(det) and np.array_equal(nav2[kept], nav)
-        det, nav = det2, nav2
-        if grown:
-            break
-    else:
-        return None  # no stable set of matches: not a confident answer
-    # Misfit test. Unmatched detections are false stars (or stars missing from the catalog), at random
-    # places: few of them have a catalog star just beyond the radius (between r and 3r). Many such near
-    # misses mean the attitude is slightly wrong (a thin triad can converge to a self-consistent wrong
-    # roll that matches only the stars around it).
-    near = int(np.count_nonzero((raw[:, 0] > chord) & (raw[:, 0] <= 3.0 * chord)))
-    if near >= 2:
-        expected = (frame.n - len(det)) * (db.p_random(3.0 * tol) - db.p_random(tol))
-        if _poisson_tail(expected, near) < _MISFIT_P:
-            return None
-    rms = float(np.sqrt(np.mean(dist * dist)))  # chord ~ angle at these scales
-    return Match(rot=rot, det=det2, nav=nav2, n_required=n_req, rms_rad=rms)
+    return Match(rot=rot_v, det=det, nav=nav, n_required=int(n_req), rms_rad=float(rms))
 
 
 def best_of(matches: list[Match], tol_rad: float) -> tuple[Match | None, str]:

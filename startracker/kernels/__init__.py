@@ -7,3 +7,54 @@ never draw random numbers: a stochastic step receives its draws from the caller'
 Where a kernel is on the per-frame hot path it is compiled with numba (``@njit(cache=True)``); the others are
 vectorised numpy. ``docs/design.md`` ("Validation and kernels") says how to add one.
 """
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import numba
+
+__all__ = ["KERNEL_SOURCES_DIGEST", "kernel_cache_dir"]
+
+
+def _sources_digest() -> str:
+    """SHA-1 of every kernel module's source, in name order (16 hex digits)."""
+    h = hashlib.sha1()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+KERNEL_SOURCES_DIGEST = _sources_digest()
+
+
+def kernel_cache_dir() -> Path:
+    """Where numba keeps the compiled kernels: a folder named by :data:`KERNEL_SOURCES_DIGEST`.
+
+    Numba checks a cached function against its own source file only, not against the kernels it calls in other
+    modules: after an edit of ``kernels/attitude.py`` a cached ``kernels/track.py`` function would keep running the
+    old Wahba code. Keying the whole cache by the digest of all kernel sources makes any edit recompile everything
+    once. The folder is ``$NUMBA_CACHE_DIR/startracker-<digest>`` when the user sets ``NUMBA_CACHE_DIR``, else
+    ``kernels/__pycache__/numba-<digest>`` beside the code when that is writable, else
+    ``$XDG_CACHE_HOME/startracker-gym/numba-<digest>`` (``~/.cache`` by default) for a read-only install.
+    """
+    user = os.environ.get("NUMBA_CACHE_DIR")
+    if user:
+        return Path(user) / f"startracker-{KERNEL_SOURCES_DIGEST}"
+    beside = Path(__file__).parent / "__pycache__"
+    try:
+        beside.mkdir(exist_ok=True)
+        if os.access(beside, os.W_OK):
+            return beside / f"numba-{KERNEL_SOURCES_DIGEST}"
+    except OSError:
+        pass
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "startracker-gym" / f"numba-{KERNEL_SOURCES_DIGEST}"
+
+
+# Set before any kernel module is imported (they import this package first), so every @njit(cache=True) below
+# writes to and reads from the digest-keyed folder.
+numba.config.CACHE_DIR = str(kernel_cache_dir())

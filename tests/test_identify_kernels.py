@@ -1,0 +1,244 @@
+"""The compiled identification kernels against plain numpy / scipy references on random inputs, and the
+identification database's disk cache (round trip, corrupt file rebuilt, changed options -> other key)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from startracker.catalog import load_catalog
+from startracker.identify import build_database, identify
+from startracker.identify.database import database_key
+from startracker.identify.frame import IdentifyOptions, prepare_frame
+from startracker.identify.pairs import join_equal
+from startracker.identify.pyramid import PairCandidates, triangles
+from startracker.identify.simulation import score_result, simulate_frame
+from startracker.kernels.identify import (
+    binom_tail,
+    build_sky_grid,
+    kvector_range,
+    nearest_two,
+    quat_from_rotation,
+    rotation_svd,
+    select_matches,
+    solve_attitude,
+)
+from startracker.kvector import KVector
+from startracker.optics import camera_preset
+from startracker.rotations import quat_from_matrix, quat_random, quat_to_matrix
+
+
+def random_unit(rng, n):
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1)[:, None]
+
+
+def test_nearest_two_equals_kd_tree():
+    """Two nearest stars within a radius: the sky grid answers exactly as scipy's k-d tree."""
+    rng = np.random.default_rng(1)
+    stars = random_unit(rng, 4000)
+    start, order = build_sky_grid(stars, 64)
+    tree = cKDTree(stars)
+    # queries near stars (the usual case), and anywhere
+    q = np.vstack([stars[rng.integers(0, 4000, 500)] + rng.normal(0, 2e-3, (500, 3)), random_unit(rng, 500)])
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    for radius in (1e-3, 5e-3, 0.05):
+        dist = np.empty((len(q), 2))
+        idx = np.empty((len(q), 2), dtype=np.int64)
+        nearest_two(q, stars, start, order, 64, radius, dist, idx)
+        d_ref, i_ref = tree.query(q, k=2, distance_upper_bound=radius)
+        assert np.array_equal(np.isinf(dist), np.isinf(d_ref))
+        fin = np.isfinite(d_ref)
+        assert np.allclose(dist[fin], d_ref[fin], rtol=0, atol=1e-12)
+        assert np.array_equal(idx[fin], i_ref[fin])
+        assert np.all(idx[~fin] == len(stars))
+
+
+def reference_select(dist, idx, chord):
+    """The numpy rule: nearest within chord, second at least chord farther, one detection per star."""
+    det = np.flatnonzero((dist[:, 0] <= chord) & (dist[:, 1] > dist[:, 0] + chord))
+    nav, d = idx[det, 0], dist[det, 0]
+    o = np.lexsort((d, nav))
+    first = np.ones(len(o), dtype=bool)
+    first[1:] = nav[o][1:] != nav[o][:-1]
+    keep = np.sort(o[first])
+    return det[keep], nav[keep], d[keep]
+
+
+def test_select_matches_equals_numpy_rule():
+    rng = np.random.default_rng(2)
+    for _ in range(300):
+        n = int(rng.integers(1, 30))
+        d0 = rng.uniform(0, 2, n)
+        dist = np.column_stack([d0, d0 + rng.exponential(1.0, n)])
+        dist[rng.random(n) < 0.2, 1] = np.inf
+        idx = np.column_stack([rng.integers(0, 8, n), rng.integers(0, 8, n)]).astype(np.int64)
+        got = select_matches(dist, idx, 1.0)
+        ref = reference_select(dist, idx, 1.0)
+        for g, r in zip(got, ref):
+            assert np.array_equal(g, r)
+
+
+def test_rotation_and_final_least_squares_equal_numpy_svd():
+    """Polar-Newton rotation equals the SVD solution; the final fit equals solve_wahba_single."""
+    from startracker.attitude import solve_wahba_single
+
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        m = int(rng.integers(3, 25))
+        boresight = random_unit(rng, 1)[0]
+        b = boresight + rng.normal(0, rng.choice([0.02, 0.1, 0.5]), (m, 3))
+        b /= np.linalg.norm(b, axis=1)[:, None]
+        q = quat_random(rng)
+        r = b @ quat_to_matrix(q).T + rng.normal(0, 1e-5, (m, 3))
+        r /= np.linalg.norm(r, axis=1)[:, None]
+        u, _, vt = np.linalg.svd(r.T @ b)
+        ref = u @ vt
+        if np.linalg.det(ref) < 0:
+            u[:, 2] *= -1
+            ref = u @ vt
+        assert np.abs(rotation_svd(b, r) - ref).max() < 1e-9
+        assert np.allclose(quat_from_rotation(ref), quat_from_matrix(ref), atol=1e-12)
+        ok, qk, rms, cov = solve_attitude(b, r, 1e-5)
+        sol = solve_wahba_single(b, r, sigma_rad=1e-5)
+        assert ok and sol.success
+        assert np.allclose(qk, sol.q_meas_to_ref, atol=1e-10)
+        assert math.isclose(rms * 206264.806, sol.residual_rms_arcsec, rel_tol=1e-6, abs_tol=1e-9)
+        assert np.allclose(cov, sol.covariance_rad2, rtol=1e-8)
+
+
+def test_kvector_range_equals_brute_force():
+    rng = np.random.default_rng(4)
+    vals = rng.uniform(0, 0.5, 5000)
+    kv = KVector(vals)
+    s = kv.sorted_values
+    for _ in range(500):
+        lo = rng.uniform(-0.05, 0.55)
+        hi = lo + rng.uniform(-0.01, 0.05)
+        a, b = kvector_range(s, kv.k, kv.a1, kv.b1, lo, hi)
+        inside = np.flatnonzero((s >= lo) & (s <= hi))
+        assert (a, b) == ((inside[0], inside[-1] + 1) if len(inside) else (a, a))
+
+
+def test_binomial_tail_equals_scipy():
+    from scipy import stats
+
+    for n, p, e in [(17, 1e-3, 1), (17, 1e-3, 3), (40, 0.02, 5), (5, 0.5, 2), (10, 1e-6, 4)]:
+        assert math.isclose(binom_tail(n, p, e), stats.binom.sf(e - 1, n, p), rel_tol=1e-5)
+
+
+def test_join_equal_is_the_equality_join():
+    rng = np.random.default_rng(5)
+    a, b = rng.integers(0, 50, 200), rng.integers(0, 50, 150)
+    li, ri = join_equal(a, b)
+    got = sorted(zip(li.tolist(), ri.tolist()))
+    ref = sorted((i, j) for i in range(len(a)) for j in range(len(b)) if a[i] == b[j])
+    assert got == ref
+
+
+@pytest.fixture(scope="module")
+def zy3():
+    cat = load_catalog(6.0)
+    cam = camera_preset("zy3")
+    return cat, cam, build_database(cat, cam)
+
+
+def test_compiled_pyramid_finds_the_true_triangle_of_the_numpy_search(zy3):
+    """The numpy triangle search (windows, join, handedness) holds the true triangle; the compiled pyramid
+    returns an attitude whose first three matches are that triangle's stars."""
+    cat, cam, db = zy3
+    rng = np.random.default_rng(6)
+    opts = IdentifyOptions()
+    for _ in range(20):
+        f = simulate_frame(cat, cam, quat_random(rng), rng, sigma_px=0.5, max_stars=20)
+        fr = prepare_frame(f.xy, cam, f.intensities, opts, n_angles=12)
+        hyp = triangles(db, fr, PairCandidates(db.pairs, fr), 0, 1, 2)
+        true = [int(np.flatnonzero(db.nav.hip == h)[0]) if h in db.nav.hip else -1 for h in f.hip[fr.index[:3]]]
+        assert any(list(row) == true for row in hyp.tolist())
+        r = identify(f.xy, cam, cat, intensities=f.intensities, database=db)
+        assert score_result(r, f) == "correct"
+        assert np.array_equal(r.star_ids[fr.index[:3]], f.hip[fr.index[:3]])
+
+
+@pytest.mark.parametrize("method", ["pyramid", "brightness", "voting", "string"])
+def test_zero_wrong_with_many_false_stars(zy3, method):
+    """Adversarial scenes: 10 false stars among the 20 brightest detections, magnitudes drawn among the
+    true stars' (ZY-3 camera, V <= 6). A method may fail; it must never answer wrongly."""
+    cat, cam, db = zy3
+    rng = np.random.default_rng(7)
+    wrong = correct = 0
+    for q in quat_random(rng, 40):
+        f = simulate_frame(cat, cam, q, rng, sigma_px=0.5, mag_sigma=0.2, n_false=10, false_among=20, max_stars=20)
+        s = score_result(identify(f.xy, cam, cat, method=method, intensities=f.intensities, database=db), f)
+        wrong += s == "wrong"
+        correct += s == "correct"
+    assert wrong == 0
+    if method == "pyramid":
+        assert correct >= 36
+    elif method == "brightness":  # its pool is the 10 brightest detections: half of them false here
+        assert correct >= 24
+
+
+def test_database_disk_round_trip(tmp_path):
+    """A database loaded from disk equals the one built: same arrays, same identification."""
+    cat = load_catalog(4.5)
+    cam = camera_preset("paper000")
+    built = build_database(cat, cam, cache=False, disk_folder=tmp_path)
+    loaded = build_database(cat, cam, cache=False, disk_folder=tmp_path)
+    assert built.source == "built" and loaded.source == "disk"
+    assert len(list(tmp_path.iterdir())) == 1
+    for name in ("hip", "vectors", "vmag", "bv"):
+        assert np.array_equal(getattr(built.nav, name), getattr(loaded.nav, name))
+    for p, q in ((built.pairs, loaded.pairs), (built.ref_pairs, loaded.ref_pairs)):
+        for name in ("first", "second", "first_mag", "second_mag", "angle_rad"):
+            assert np.array_equal(getattr(p, name), getattr(q, name))
+        assert np.array_equal(p.kvector.k, q.kvector.k) and p.kvector.a1 == q.kvector.a1
+    for name in ("guide", "length", "codes", "neighbour", "below"):
+        assert np.array_equal(getattr(built.patterns, name), getattr(loaded.patterns, name))
+    assert np.array_equal(built.grid_start, loaded.grid_start) and np.array_equal(built.grid_stars, loaded.grid_stars)
+    assert (built.clumping3, built.density_eff_per_sr) == (loaded.clumping3, loaded.density_eff_per_sr)
+    rng = np.random.default_rng(8)
+    for q in quat_random(rng, 10):
+        f = simulate_frame(cat, cam, q, rng, sigma_px=0.5)
+        a = identify(f.xy, cam, cat, database=built)
+        b = identify(f.xy, cam, cat, database=loaded)
+        assert a.success == b.success and np.array_equal(a.star_ids, b.star_ids)
+        assert np.array_equal(a.q_cam_to_icrs, b.q_cam_to_icrs)
+
+
+def test_corrupt_database_file_is_rebuilt(tmp_path):
+    cat = load_catalog(4.0)
+    cam = camera_preset("paper000")
+    build_database(cat, cam, cache=False, disk_folder=tmp_path)
+    (path,) = tmp_path.iterdir()
+    raw = bytearray(path.read_bytes())
+    raw[-100] ^= 0xFF  # one byte of the payload
+    path.write_bytes(bytes(raw))
+    again = build_database(cat, cam, cache=False, disk_folder=tmp_path)
+    assert again.source == "built"
+    assert build_database(cat, cam, cache=False, disk_folder=tmp_path).source == "disk"
+
+
+def test_changed_options_or_catalog_give_another_key():
+    cat = load_catalog(4.0)
+    cam = camera_preset("paper000")
+    opts = dict(mag_limit=None, min_separation_px=2.0, ref_mag_limit=3.6, guide_mag_limit=None,
+                guide_min_separation_deg=0.0)
+    k0 = database_key(cat, cam, opts)
+    assert database_key(cat, cam, dict(opts)) == k0
+    assert database_key(cat, cam, dict(opts, ref_mag_limit=3.0)) != k0
+    assert database_key(cat, camera_preset("zy3"), opts) != k0
+    assert database_key(load_catalog(4.5), cam, opts) != k0
+
+
+def test_cache_dir_follows_the_environment(monkeypatch, tmp_path):
+    from startracker import cache
+
+    monkeypatch.setenv("STARTRACKER_CACHE_DIR", str(tmp_path / "a"))
+    assert cache.cache_dir() == tmp_path / "a"
+    monkeypatch.delenv("STARTRACKER_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache.cache_dir() == tmp_path / "xdg" / "startracker-gym"
+    monkeypatch.setenv("STARTRACKER_CACHE_DIR", "")
+    assert cache.cache_dir() is None

@@ -28,6 +28,9 @@ limit receives no torque that would spin it faster (checked every physics subste
 never exceeds the limit by more than one substep's worth of coupling from the bus motion).
 Optional friction: Coulomb (``wheel_friction_Nm``, MuJoCo ``frictionloss``) and viscous
 (``wheel_viscous_Nm_s``, joint ``damping``), both internal torques between wheel and bus.
+
+The module is over 600 lines because it is one physics object (:class:`Spacecraft`): the MJCF build, the
+state accessors, the wheel limits and the recording integrator share the model's private layout.
 """
 
 from __future__ import annotations

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -36,13 +37,19 @@ class ControllerSpec:
     control_period_s: float
     observation_layout: dict
 
+    @cached_property
+    def wheel_allocation(self) -> np.ndarray:
+        """Least-norm allocation, shape (n_wheels, 3): wheel torques ``= -wheel_allocation @ torque_body`` (a
+        constant of the design, computed once)."""
+        return np.linalg.pinv(self.wheel_axes_body)
+
     def body_torque_to_action(self, torque_body_Nm) -> np.ndarray:
         """Wheel commands in [-1, 1] producing the body torque ``torque_body_Nm`` (3,) (N m).
 
         A wheel accelerated by torque τ pushes the bus with −τ along its axis, hence the sign.
         The least-norm wheel torques are scaled down together (direction kept) if one saturates.
         """
-        tau_w = -np.linalg.pinv(self.wheel_axes_body) @ np.asarray(torque_body_Nm, dtype=np.float64)
+        tau_w = -self.wheel_allocation @ np.asarray(torque_body_Nm, dtype=np.float64)
         cmd = tau_w / self.wheel_max_torque_Nm
         peak = np.max(np.abs(cmd)) if cmd.size else 0.0
         if peak > 1.0:
@@ -53,7 +60,7 @@ class ControllerSpec:
         """Largest body torque (N m) the wheels can produce about a unit axis."""
         a = np.asarray(axis_body, dtype=np.float64)
         a = a / np.linalg.norm(a)
-        tau_w = -np.linalg.pinv(self.wheel_axes_body) @ a
+        tau_w = -self.wheel_allocation @ a
         return float(self.wheel_max_torque_Nm / np.max(np.abs(tau_w)))
 
 

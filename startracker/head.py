@@ -123,8 +123,9 @@ class MonoHead:
         scene : startracker.scene.Scene
             What was imaged (for :meth:`render`).
         """
-        scene = compute_scene(self.camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies)
-        det = simulate_detections(scene, self.sensor_model, rng, fidelity=fidelity)
+        # the head's own camera, model and plan, and the unit's float64 truth history: checked where they were built
+        scene = compute_scene(self.camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies, validate=False)
+        det = simulate_detections(scene, self.sensor_model, rng, fidelity=fidelity, validate=False)
         return det, scene
 
     def render(self, scene, det) -> np.ndarray:
@@ -186,8 +187,8 @@ class ColorHead:
         and ``det`` the fused detections in green-channel pixels (intensity: the sum over the channels)."""
         from startracker.color import channel_scenes, fuse_channel_centroids
 
-        scenes = channel_scenes(self.color_camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies)
-        per_channel = [simulate_detections(sc, self.sensor_model, rng, fidelity=fidelity) for sc in scenes]
+        scenes = channel_scenes(self.color_camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies, validate=False)
+        per_channel = [simulate_detections(sc, self.sensor_model, rng, fidelity=fidelity, validate=False) for sc in scenes]
         fused = fuse_channel_centroids(per_channel, self.registration, gain_e_per_dn=self.sensor_model.gain_e_per_dn)
         n = len(fused)
         total = fused.total_intensity

@@ -13,7 +13,7 @@ from startracker.identify.database import database_key
 from startracker.identify.frame import IdentifyOptions, prepare_frame
 from startracker.identify.pairs import join_equal
 from startracker.identify.pyramid import PairCandidates, triangles
-from startracker.identify.simulation import score_result, simulate_frame
+from startracker.simulation import score_result, simulate_identification_frame
 from startracker.kernels.identify import (
     binom_tail,
     build_sky_grid,
@@ -151,7 +151,7 @@ def test_compiled_pyramid_finds_the_true_triangle_of_the_numpy_search(zy3):
     rng = np.random.default_rng(6)
     opts = IdentifyOptions()
     for _ in range(20):
-        f = simulate_frame(cat, cam, quat_random(rng), rng, sigma_px=0.5, max_stars=20)
+        f = simulate_identification_frame(cat, cam, quat_random(rng), rng, sigma_px=0.5, max_stars=20)
         fr = prepare_frame(f.xy, cam, f.intensities, opts, n_angles=12)
         hyp = triangles(db, fr, PairCandidates(db.pairs, fr), 0, 1, 2)
         true = [int(np.flatnonzero(db.nav.hip == h)[0]) if h in db.nav.hip else -1 for h in f.hip[fr.index[:3]]]
@@ -169,7 +169,7 @@ def test_zero_wrong_with_many_false_stars(zy3, method):
     rng = np.random.default_rng(7)
     wrong = correct = 0
     for q in quat_random(rng, 40):
-        f = simulate_frame(cat, cam, q, rng, sigma_px=0.5, mag_sigma=0.2, n_false=10, false_among=20, max_stars=20)
+        f = simulate_identification_frame(cat, cam, q, rng, sigma_px=0.5, mag_sigma=0.2, n_false=10, false_among=20, max_stars=20)
         s = score_result(identify(f.xy, cam, cat, method=method, intensities=f.intensities, database=db), f)
         wrong += s == "wrong"
         correct += s == "correct"
@@ -200,7 +200,7 @@ def test_database_disk_round_trip(tmp_path):
     assert (built.clumping3, built.density_eff_per_sr) == (loaded.clumping3, loaded.density_eff_per_sr)
     rng = np.random.default_rng(8)
     for q in quat_random(rng, 10):
-        f = simulate_frame(cat, cam, q, rng, sigma_px=0.5)
+        f = simulate_identification_frame(cat, cam, q, rng, sigma_px=0.5)
         a = identify(f.xy, cam, cat, database=built)
         b = identify(f.xy, cam, cat, database=loaded)
         assert a.success == b.success and np.array_equal(a.star_ids, b.star_ids)

@@ -17,6 +17,10 @@ between verified attitudes of one triad (documented in :mod:`startracker.identif
 The candidate source is data: each detection ``p`` may only stand for the catalog stars whose
 ``star_key`` lies in ``[key_lo[p], key_hi[p]]`` (all stars when the interval is infinite), so a method
 with one more per-star feature (colour) reuses the same loop.
+
+The module is over 600 lines because it holds the compiled core of every identification method: the
+pyramid loop, the shared verification and least squares, the vote table and the frame tables call the same
+inner helpers.
 """
 
 from __future__ import annotations

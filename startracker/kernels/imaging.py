@@ -3,6 +3,9 @@
 Compiled with numba, no checks; the checked API is :mod:`startracker.imaging` (``render_sparse``, ``render_frame``,
 ``render_expected``, ``draw_false_pixels``). Pixel ``(0, 0)`` is the centre of the top-left pixel; linear pixel
 indices are ``row * n_cols + col``. Random numbers are drawn by the caller's ``numpy.random.Generator`` and passed in.
+
+The module is over 600 lines because the sparse pixel frame is one pipeline (spots, windows, the sparse set,
+DN conversion, background crossings) whose stages share the same pixel-set layout.
 """
 
 from __future__ import annotations

@@ -293,11 +293,19 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
     return q * _CONJ
 
 
+def _pair_rows(q1: np.ndarray, q2: np.ndarray):
+    """Two broadcastable (..., 4) arrays as row arrays of one length, and the broadcast shape."""
+    s1, s2 = np.shape(q1), np.shape(q2)
+    if s1 == s2:  # the usual case: no broadcasting machinery
+        return _rows(q1, 4), _rows(q2, 4), s1
+    shape = np.broadcast_shapes(s1, s2)
+    return _rows(np.broadcast_to(q1, shape), 4), _rows(np.broadcast_to(q2, shape), 4), shape
+
+
 def quat_multiply(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Hamilton product ``q1 ⊗ q2`` of broadcastable (..., 4) quaternions (not renormalised)."""
-    shape = np.broadcast_shapes(np.shape(q1), np.shape(q2))
-    a, b = np.broadcast_to(q1, shape), np.broadcast_to(q2, shape)
-    return _multiply_rows(_rows(a, 4), _rows(b, 4)).reshape(shape)
+    a, b, shape = _pair_rows(q1, q2)
+    return _multiply_rows(a, b).reshape(shape)
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -338,9 +346,8 @@ def quat_integrate(q, omega_body, dt, alpha_body=None) -> np.ndarray:
 
 def quat_angle_between(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Angle (rad, in [0, π]) of the rotation taking attitude ``q1`` to ``q2``; sign-invariant, shape (...)."""
-    shape = np.broadcast_shapes(np.shape(q1), np.shape(q2))
-    a, b = np.broadcast_to(q1, shape), np.broadcast_to(q2, shape)
-    return _angle_between_rows(_rows(a, 4), _rows(b, 4)).reshape(shape[:-1])
+    a, b, shape = _pair_rows(q1, q2)
+    return _angle_between_rows(a, b).reshape(shape[:-1])
 
 
 def quat_from_matrix(m: np.ndarray) -> np.ndarray:

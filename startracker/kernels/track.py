@@ -3,6 +3,9 @@
 The checked API and the methods' descriptions are in :mod:`startracker.track` (paper 000). Arrays are float64
 (int64 for indices, bool for masks), pixel coordinates (column, row) in px, directions unit vectors, quaternions
 (w, x, y, z) unit and canonical (first non-zero component positive).
+
+The module is over 600 lines because prediction, the two matchers and the grouping with its Wahba solutions
+are the compiled steps of one tracking frame and share their projection and bookkeeping helpers.
 """
 
 from __future__ import annotations

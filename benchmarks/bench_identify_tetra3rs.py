@@ -46,7 +46,7 @@ from bench_identify_common import machine_line, print_table
 from startracker import cache
 from startracker.catalog import load_catalog
 from startracker.identify import build_database, clear_database_cache, identify
-from startracker.identify.simulation import simulate_frame
+from startracker.simulation import simulate_identification_frame as simulate_frame
 from startracker.optics import camera_preset
 from startracker.rotations import quat_random, quat_to_matrix
 

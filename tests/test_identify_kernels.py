@@ -13,7 +13,7 @@ from startracker.identify.database import database_key
 from startracker.identify.frame import IdentifyOptions, prepare_frame
 from startracker.identify.pairs import join_equal
 from startracker.identify.pyramid import PairCandidates, triangles
-from startracker.identify.simulation import score_result, simulate_frame
+from startracker.simulation import score_result, simulate_identification_frame as simulate_frame
 from startracker.kernels.identify import (
     binom_tail,
     build_sky_grid,

@@ -242,3 +242,44 @@ def test_cache_dir_follows_the_environment(monkeypatch, tmp_path):
     assert cache.cache_dir() == tmp_path / "xdg" / "startracker-gym"
     monkeypatch.setenv("STARTRACKER_CACHE_DIR", "")
     assert cache.cache_dir() is None
+
+
+@pytest.mark.parametrize("preset", ["zy3", "paper004"])
+def test_prepared_frame_equals_numpy_reference(preset):
+    """prepare_frame (one compiled call): brightest first (stable), off-detector points and duplicates
+    dropped, unit vectors, magnitudes and the angle / window tables as a plain numpy computation gives."""
+    cam = camera_preset(preset)
+    w, h = cam.resolution
+    rng = np.random.default_rng(11)
+    opts = IdentifyOptions(sigma_px=0.7, floor_arcsec=3.0, mag_zero_point=1.5)
+    for trial in range(20):
+        k = int(rng.integers(0, 30))
+        xy = np.column_stack([rng.uniform(-20, w + 20, k), rng.uniform(-20, h + 20, k)])
+        if k > 4:  # near-duplicates of earlier detections, and exact edge pixels
+            xy[3] = xy[1] + rng.normal(0, 0.005, 2)
+            xy[4] = [-0.5, h - 0.5]
+        inten = rng.choice([1.0, 2.0, 5.0], k) if trial % 2 else None
+        fr = prepare_frame(xy, cam, inten, opts, n_angles=12)
+        # numpy reference
+        order = np.arange(k) if inten is None else np.argsort(-inten, kind="stable")
+        on = (xy[:, 0] >= -0.5) & (xy[:, 0] <= w - 0.5) & (xy[:, 1] >= -0.5) & (xy[:, 1] <= h - 0.5)
+        order = order[on[order]]
+        u = cam.unproject(xy[order]) if len(order) else np.empty((0, 3))
+        pix = cam.pixel_size_mm / cam.focal_length_mm
+        sigma = 0.7 * pix
+        dup_cos = math.cos(max(0.1 * sigma, 0.05 * pix))
+        keep = [j for j in range(len(u)) if not any(u[i] @ u[j] > dup_cos for i in range(j))]
+        assert np.array_equal(fr.index, order[keep])
+        assert fr.n_dropped == k - len(keep) and fr.n_input == k
+        np.testing.assert_allclose(fr.v, u[keep], rtol=0, atol=1e-15)
+        if inten is None:
+            assert fr.mag is None
+        else:
+            np.testing.assert_allclose(fr.mag, 1.5 - 2.5 * np.log10(inten[fr.index]), rtol=0, atol=1e-13)
+        vm = fr.v[:12]
+        ang = np.arctan2(np.linalg.norm(np.cross(vm[:, None], vm[None]), axis=-1), vm @ vm.T)
+        np.testing.assert_allclose(fr.angle_rad, ang, rtol=0, atol=1e-15)
+        floor = 3.0 * math.pi / 648000.0
+        tol = np.hypot(3.0 * math.sqrt(2.0) * sigma, floor) + 1.1e-4 * ang
+        np.testing.assert_allclose(fr.pair_tol_rad, tol, rtol=1e-14, atol=0)
+        assert fr.match_tol_rad == pytest.approx(math.hypot(4.0 * sigma, floor), rel=1e-14)

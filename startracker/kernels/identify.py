@@ -26,6 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.optics import unproject_pinhole
+
 __all__ = [
     "rotate_all",
     "triple_product",
@@ -34,7 +36,7 @@ __all__ = [
     "det3",
     "inv_transpose3",
     "cast_votes",
-    "frame_tables",
+    "prepare_detections",
     "GRID_CELLS",
     "build_sky_grid",
     "grid_cell",
@@ -973,17 +975,34 @@ def cast_votes(ang, tol, pool, s_ang, kk, a1, b1, first, second, first_mag, seco
 
 
 @njit(cache=True)
-def frame_tables(v, n_angles, dup_cos, pair_sigma_rad, floor_rad, aberration_scale):
-    """Duplicates, inter-star angles and pair windows of a frame's detections.
+def prepare_detections(xy, intensities, have_intensities, mag_zero_point, width, height, focal_length_mm,
+                       k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles, dup_cos, pair_sigma_rad, floor_rad,
+                       aberration_scale):
+    """A frame's detections ready for identification: order, usable points, unit vectors, angle tables.
+
+    Detections are ordered brightest first (stable) when intensities are given, points off the detector
+    (beyond the outer pixel edges) dropped, the rest turned into camera-frame unit vectors
+    (:func:`startracker.kernels.optics.unproject_pinhole`), a detection closer than the duplicate radius
+    to a brighter one dropped, and the inter-star angles and pair windows of the first ``n_angles``
+    kept detections tabulated.
 
     Parameters
     ----------
-    v : ndarray, shape (n, 3)
-        Camera-frame unit vectors, brightest first.
+    xy : ndarray, shape (K, 2)
+        Detections (column, row), px.
+    intensities : ndarray, shape (K,)
+        Positive intensities (read only when ``have_intensities``).
+    have_intensities : bool
+    mag_zero_point : float
+        Measured magnitude ``mag_zero_point − 2.5 log10(intensity)``.
+    width, height : int
+        Detector size, px.
+    focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy : float
+        Camera model (see :func:`startracker.kernels.optics.unproject_pinhole`).
     n_angles : int
-        Tabulate the first ``m = min(n_kept, n_angles)`` kept detections.
+        Tabulate the first ``m = min(n, n_angles)`` kept detections.
     dup_cos : float
-        Cosine of the duplicate radius: a detection closer than that to an earlier one is dropped.
+        Cosine of the duplicate radius.
     pair_sigma_rad : float
         ``pair_sigmas · √2 · σ`` of an inter-star angle, rad.
     floor_rad : float
@@ -993,37 +1012,70 @@ def frame_tables(v, n_angles, dup_cos, pair_sigma_rad, floor_rad, aberration_sca
 
     Returns
     -------
-    keep : ndarray of bool, shape (n,)
+    index : ndarray of int64, shape (n,)
+        Row in ``xy`` of each kept detection, brightest first.
+    v : ndarray, shape (n, 3)
+        Camera-frame unit vectors.
+    mag : ndarray, shape (n,)
+        Measured magnitudes (zeros without intensities).
     ang : ndarray, shape (m, m)
         Angles between kept detections, rad.
     tol : ndarray, shape (m, m)
         Window half-widths, rad.
     """
-    n = v.shape[0]
-    keep = np.ones(n, dtype=np.bool_)
-    for j in range(1, n):
+    k = xy.shape[0]
+    if have_intensities:
+        order = np.argsort(-intensities, kind="mergesort")
+    else:
+        order = np.arange(k)
+    on = np.empty(k, dtype=np.int64)
+    n_on = 0
+    for t in range(k):
+        r = order[t]
+        x, y = xy[r, 0], xy[r, 1]
+        if x >= -0.5 and x <= width - 0.5 and y >= -0.5 and y <= height - 0.5:
+            on[n_on] = r
+            n_on += 1
+    pts = np.empty((n_on, 2))
+    for t in range(n_on):
+        pts[t, 0] = xy[on[t], 0]
+        pts[t, 1] = xy[on[t], 1]
+    u = unproject_pinhole(pts, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy)
+    keep = np.ones(n_on, dtype=np.bool_)
+    n = n_on
+    for j in range(1, n_on):
         for i in range(j):
-            if v[i, 0] * v[j, 0] + v[i, 1] * v[j, 1] + v[i, 2] * v[j, 2] > dup_cos:
+            if u[i, 0] * u[j, 0] + u[i, 1] * u[j, 1] + u[i, 2] * u[j, 2] > dup_cos:
                 keep[j] = False
+                n -= 1
                 break
-    idx = np.flatnonzero(keep)
-    m = min(len(idx), n_angles)
+    index = np.empty(n, dtype=np.int64)
+    v = np.empty((n, 3))
+    mag = np.zeros(n)
+    c = 0
+    for t in range(n_on):
+        if keep[t]:
+            index[c] = on[t]
+            v[c, 0], v[c, 1], v[c, 2] = u[t, 0], u[t, 1], u[t, 2]
+            if have_intensities:
+                mag[c] = mag_zero_point - 2.5 * math.log10(intensities[on[t]])
+            c += 1
+    m = min(n, n_angles)
     ang = np.zeros((m, m))
     tol = np.empty((m, m))
     base = math.sqrt(pair_sigma_rad * pair_sigma_rad + floor_rad * floor_rad)
     for a in range(m):
         tol[a, a] = base
         for b in range(a + 1, m):
-            p, q = idx[a], idx[b]
             # atan2 of |p × q| and p · q: accurate at small angles too
-            cx = v[p, 1] * v[q, 2] - v[p, 2] * v[q, 1]
-            cy = v[p, 2] * v[q, 0] - v[p, 0] * v[q, 2]
-            cz = v[p, 0] * v[q, 1] - v[p, 1] * v[q, 0]
-            dot = v[p, 0] * v[q, 0] + v[p, 1] * v[q, 1] + v[p, 2] * v[q, 2]
-            t = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), dot)
-            ang[a, b] = t
-            ang[b, a] = t
-            w = base + aberration_scale * t
+            cx = v[a, 1] * v[b, 2] - v[a, 2] * v[b, 1]
+            cy = v[a, 2] * v[b, 0] - v[a, 0] * v[b, 2]
+            cz = v[a, 0] * v[b, 1] - v[a, 1] * v[b, 0]
+            dot = v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]
+            th = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), dot)
+            ang[a, b] = th
+            ang[b, a] = th
+            w = base + aberration_scale * th
             tol[a, b] = w
             tol[b, a] = w
-    return keep, ang, tol
+    return index, v, mag, ang, tol

@@ -16,6 +16,7 @@ stars at load (about a millisecond). A corrupt or stale file is rebuilt, never t
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import math
 import time
@@ -114,12 +115,26 @@ class StarDatabase:
         """Size of the pattern-string catalog with paper 003's storage layout, bytes."""
         return self.patterns.paper_bytes
 
-    @property
+    @functools.cached_property
     def mean_stars_per_fov(self) -> float:
         """Mean number of navigation stars on the detector (uniform sky)."""
         hx, hy = self.camera.half_fov_rad
         omega = 4.0 * math.asin(math.sin(hx) * math.sin(hy))  # solid angle of the rectangular field
         return self.n_stars * omega / (4.0 * math.pi)
+
+    @functools.cached_property
+    def search_arrays(self) -> tuple:
+        """The database as the compiled pyramid takes it, gathered once: ``(nav, sorted pair angles, k-vector,
+        a1, b1, first, second, grid_start, grid_stars, grid_cells)`` (see
+        :func:`startracker.kernels.identify.pyramid_search`)."""
+        kv = self.pairs.kvector
+        return (self.nav.vectors, kv.sorted_values, kv.k, float(kv.a1), float(kv.b1), self.pairs.first,
+                self.pairs.second, self.grid_start, self.grid_stars, int(self.grid_cells))
+
+    @functools.cached_property
+    def usable(self) -> bool:
+        """Whether the catalog is dense enough for lost-in-space (some pairs, at least a star per frame)."""
+        return len(self.pairs) > 0 and self.mean_stars_per_fov >= 1.0
 
     def p_random(self, tol_rad: float) -> float:
         """Probability that a direction falls within ``tol_rad`` of some navigation star by chance."""

@@ -218,6 +218,7 @@ class CandidateFilter:
 
 
 _NO_KEY = np.zeros(1)
+_ONES = np.ones(256)  # the per-detection λ factors without a filter (only the first n are read)
 CHEAP_FIRST = 10  # triads are tried cheapest first within blocks of this many (smart order across blocks)
 
 
@@ -241,9 +242,9 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
         return None, "fewer than 3 usable detections", 0
     pool = min(n, opts.max_stars or 12, len(frame.angle_rad))
     triads = triad_table(pool, opts.max_triads)
-    kv = db.pairs.kvector
     if candidates is None:
-        key, lo, hi, rate, filtered = _NO_KEY, _NO_KEY, _NO_KEY, np.ones(n), False
+        rate = _ONES if n <= len(_ONES) else np.ones(n)
+        key, lo, hi, filtered = _NO_KEY, _NO_KEY, _NO_KEY, False
     else:
         key = np.ascontiguousarray(candidates.star_key, dtype=np.float64)
         lo = np.ascontiguousarray(candidates.lo, dtype=np.float64)
@@ -251,8 +252,7 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
         rate = np.ascontiguousarray(candidates.false_rate_scale, dtype=np.float64)
         filtered = True
     status, det, nav, n_req, n_hyp, rot, rms, counts = pyramid_search(
-        frame.v, frame.angle_rad, frame.pair_tol_rad, triads, CHEAP_FIRST, pool, db.nav.vectors, kv.sorted_values, kv.k,
-        kv.a1, kv.b1, db.pairs.first, db.pairs.second, db.grid_start, db.grid_stars, db.grid_cells, key, lo, hi,
+        frame.v, frame.angle_rad, frame.pair_tol_rad, triads, CHEAP_FIRST, pool, *db.search_arrays, key, lo, hi,
         filtered, rate, db.clumping3, db.density_eff_per_sr, frame.match_tol_rad, opts.false_alarm,
         verification.MAX_ROUNDS, verification.STABLE_FIT, verification.MISFIT_P)
     if candidates is not None:

@@ -45,6 +45,7 @@ __all__ = [
     "rotation_svd",
     "quat_from_rotation",
     "solve_attitude",
+    "solve_identified",
     "binom_tail",
     "poisson_tail",
     "required_matches",
@@ -373,6 +374,47 @@ def solve_attitude(b, r, sigma_rad):
         a = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), rb0 * r[t, 0] + rb1 * r[t, 1] + rb2 * r[t, 2])
         acc += a * a
     return True, quat_from_rotation(rot), math.sqrt(acc / m), np.linalg.inv(info)
+
+
+@njit(cache=True)
+def solve_identified(v, nav, nav_hip, index, det, nav_idx, n_input, sigma_rad):
+    """Final least squares on a verified match set, and the HIP label of every input detection.
+
+    Parameters
+    ----------
+    v : ndarray, shape (n, 3)
+        Usable detections (camera frame).
+    nav : ndarray, shape (N, 3)
+        Navigation stars (ICRS).
+    nav_hip : ndarray of int64, shape (N,)
+        Their HIP numbers.
+    index : ndarray of int64, shape (n,)
+        Input row of each usable detection.
+    det, nav_idx : ndarray of int64, shape (m,)
+        Detection ``det[t]`` is navigation star ``nav_idx[t]``.
+    n_input : int
+        Input detections.
+    sigma_rad : float
+        1σ angular noise of a measured direction, rad.
+
+    Returns
+    -------
+    ok, q, rms_rad, cov
+        As :func:`solve_attitude` on the matched pairs.
+    star_ids : ndarray of int64, shape (n_input,)
+        HIP number of each input detection, −1 for the unmatched.
+    """
+    m = det.shape[0]
+    b = np.empty((m, 3))
+    r = np.empty((m, 3))
+    star_ids = np.full(n_input, -1, dtype=np.int64)
+    for t in range(m):
+        for ax in range(3):
+            b[t, ax] = v[det[t], ax]
+            r[t, ax] = nav[nav_idx[t], ax]
+        star_ids[index[det[t]]] = nav_hip[nav_idx[t]]
+    ok, q, rms, cov = solve_attitude(b, r, sigma_rad)
+    return ok, q, rms, cov, star_ids
 
 
 @njit(cache=True)

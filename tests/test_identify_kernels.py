@@ -283,3 +283,63 @@ def test_prepared_frame_equals_numpy_reference(preset):
         tol = np.hypot(3.0 * math.sqrt(2.0) * sigma, floor) + 1.1e-4 * ang
         np.testing.assert_allclose(fr.pair_tol_rad, tol, rtol=1e-14, atol=0)
         assert fr.match_tol_rad == pytest.approx(math.hypot(4.0 * sigma, floor), rel=1e-14)
+
+
+def test_smart_triads_kernel_equals_mortari_order():
+    """The compiled triad table is the smart order of the Python generator (truncated)."""
+    from startracker.identify.pyramid import smart_triads as smart_triads_py
+    from startracker.kernels.identify import smart_triads
+
+    for n in (0, 2, 3, 4, 7, 12):
+        for cap in (1, 10, 100, 1000):
+            ref = np.array(list(smart_triads_py(n))[:cap], dtype=np.int64).reshape(-1, 3)
+            assert np.array_equal(smart_triads(n, cap), ref)
+
+
+def test_pair_count_estimate_tracks_exact_window_counts(zy3):
+    """The cache-resident count table estimates a window's pairs within the pairs of one bin at each end."""
+    from startracker.kernels.identify import pair_count_table, window_estimate
+
+    _, _, db = zy3
+    s = db.pairs.kvector.sorted_values
+    cdf, bin_rad = pair_count_table(s)
+    rng = np.random.default_rng(12)
+    for _ in range(200):
+        th, tol = rng.uniform(0, s[-1]), rng.uniform(1e-5, 3e-3)
+        exact = 2 * (np.searchsorted(s, th + tol, side="right") - np.searchsorted(s, th - tol, side="left"))
+        per_bin = 2 * max(np.diff(cdf[max(int((th - tol) / bin_rad) - 1, 0):int((th + tol) / bin_rad) + 3]).max(), 1)
+        assert abs(window_estimate(cdf, bin_rad, th - tol, th + tol) - exact) <= 2 * per_bin
+
+
+def test_one_call_pyramid_equals_the_staged_pipeline(zy3):
+    """identify(method="pyramid") runs pixels -> labels in one compiled call; the staged pipeline (frame,
+    pyramid search, final least squares) gives the same labels and attitude on the same scenes, with false
+    stars and detections off the detector too."""
+    from startracker.identify.pyramid import identify_pyramid
+    from startracker.kernels.identify import solve_identified
+
+    cat, cam, db = zy3
+    rng = np.random.default_rng(13)
+    opts = IdentifyOptions()
+    n_ok = 0
+    for t, q in enumerate(quat_random(rng, 30)):
+        f = simulate_frame(cat, cam, q, rng, sigma_px=0.5, mag_sigma=0.2, n_false=5 * (t % 3), false_among=20,
+                           max_stars=20)
+        xy = f.xy.copy()
+        if t % 4 == 0:
+            xy[-1] = [-3.0, 10.0]
+        r = identify(xy, cam, cat, intensities=f.intensities, database=db)
+        fr = prepare_frame(xy, cam, f.intensities, opts, n_angles=12)
+        match, status, n_hyp = identify_pyramid(db, fr, opts)
+        assert r.n_hypotheses == n_hyp
+        if match is None:
+            assert not r.success and r.status == status and np.all(r.star_ids == -1)
+            continue
+        ok, q_ref, rms, cov, ids = solve_identified(fr.v, db.nav.vectors, db.nav.hip, fr.index, match.det,
+                                                    match.nav, fr.n_input, fr.sigma_rad)
+        assert r.success and r.status == "ok"
+        assert np.array_equal(r.star_ids, ids) and np.array_equal(r.q_cam_to_icrs, q_ref)
+        assert r.n_matched == match.n_matched and r.n_required == match.n_required
+        assert r.residual_arcsec == pytest.approx(rms * 206264.80624709636, rel=1e-12)
+        n_ok += 1
+    assert n_ok >= 25

@@ -23,7 +23,7 @@ from startracker.kernels.identify import prepare_detections
 from startracker.optics import Camera
 from startracker.validation import as_float_array
 
-__all__ = ["IdentifyOptions", "Frame", "prepare_frame", "ARCSEC"]
+__all__ = ["IdentifyOptions", "Frame", "prepare_frame", "detection_arguments", "ARCSEC"]
 
 ARCSEC = np.pi / (180.0 * 3600.0)
 
@@ -177,10 +177,18 @@ class Frame:
         return len(self.v)
 
 
-def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angles: int | None = None) -> Frame:
-    """Validate and prepare detections (see the module docstring).
+def detection_arguments(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angles: int | None = None):
+    """Check detections and turn them, the camera and the options into the arguments of
+    :func:`startracker.kernels.identify.prepare_detections`.
 
-    ``n_angles`` limits the angle tables to the brightest detections (None: all).
+    Returns
+    -------
+    args : tuple
+        The kernel's arguments.
+    k : int
+        Rows of ``xy``.
+    sigma_rad, match_tol_rad : float
+        Centroid noise as an angle and the verification radius.
 
     Raises
     ------
@@ -205,10 +213,24 @@ def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angl
     # Duplicates (closer than a tenth of the noise or 0.05 px): keep the brighter.
     dup_rad = max(0.1 * sigma_rad, 0.05 * c[7])
     n_tab = k if n_angles is None else int(n_angles)
-    index, v, mag, ang, pair_tol = prepare_detections(
-        np.ascontiguousarray(xy), inten, intensities is not None, float(opts.mag_zero_point), c[0], c[1], c[2], c[3],
-        c[4], c[5], c[6], n_tab, math.cos(dup_rad), opts.pair_sigmas * _SQRT2 * sigma_rad, floor,
-        float(opts.aberration_scale))
+    args = (np.ascontiguousarray(xy), np.ascontiguousarray(inten), intensities is not None,
+            float(opts.mag_zero_point), c[0], c[1], c[2], c[3], c[4], c[5], c[6], n_tab, math.cos(dup_rad),
+            opts.pair_sigmas * _SQRT2 * sigma_rad, floor, float(opts.aberration_scale))
+    return args, k, sigma_rad, math.hypot(opts.match_sigmas * sigma_rad, floor)
+
+
+def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angles: int | None = None) -> Frame:
+    """Validate and prepare detections (see the module docstring).
+
+    ``n_angles`` limits the angle tables to the brightest detections (None: all).
+
+    Raises
+    ------
+    ValueError
+        ``xy`` is not a finite (K, 2) array, or ``intensities`` is not a finite positive (K,) array.
+    """
+    args, k, sigma_rad, match_tol = detection_arguments(xy, camera, intensities, opts, n_angles)
+    index, v, mag, ang, pair_tol = prepare_detections(*args)
     return Frame(
         v=v,
         mag=None if intensities is None else mag,
@@ -216,7 +238,7 @@ def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angl
         n_input=k,
         angle_rad=ang,
         pair_tol_rad=pair_tol,
-        match_tol_rad=math.hypot(opts.match_sigmas * sigma_rad, floor),
+        match_tol_rad=match_tol,
         sigma_rad=sigma_rad,
         n_dropped=k - len(index),
     )

@@ -219,6 +219,7 @@ class CandidateFilter:
 
 _NO_KEY = np.zeros(1)
 _ONES = np.ones(256)  # the per-detection λ factors without a filter (only the first n are read)
+SEARCH_STATUS = {1: "ambiguous: two different attitudes verified", 2: "no triad was confirmed and verified"}
 CHEAP_FIRST = 10  # triads are tried cheapest first within blocks of this many (smart order across blocks)
 
 
@@ -260,6 +261,4 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
         candidates.pairs_kept += int(counts[1])
     if status == 0:
         return Match(rot=rot, det=det, nav=nav, n_required=int(n_req), rms_rad=float(rms)), "ok", int(n_hyp)
-    if status == 1:
-        return None, "ambiguous: two different attitudes verified", int(n_hyp)
-    return None, "no triad was confirmed and verified", int(n_hyp)
+    return None, SEARCH_STATUS[int(status)], int(n_hyp)

@@ -13,7 +13,9 @@ A hypothesis needs a fourth detection ``r`` whose catalog star has the right ang
 (the pyramid); then the common verification decides, and reporting failure is preferred to a
 low-confidence answer (two different verified attitudes make the frame ambiguous).
 
-The loop runs compiled (:func:`startracker.kernels.identify.pyramid_search`); the numpy pieces
+The loop runs compiled (:func:`startracker.kernels.identify.pyramid_search`; without a candidate filter
+:func:`startracker.identify.identify` runs the whole frame in one compiled call,
+:func:`startracker.kernels.identify.identify_pyramid_detections`); the numpy pieces
 (:class:`PairCandidates`, :func:`triangles`, :func:`confirm_fourth`) serve the brightness-referenced
 method and as the reference the kernel is tested against. :class:`CandidateFilter` makes the candidate
 source injectable (colour-aided identification).

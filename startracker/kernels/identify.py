@@ -16,7 +16,14 @@ the fourth star, the verification with the false-alarm rule and the misfit test,
 between verified attitudes of one triad (documented in :mod:`startracker.identify.verification`).
 The candidate source is data: each detection ``p`` may only stand for the catalog stars whose
 ``star_key`` lies in ``[key_lo[p], key_hi[p]]`` (all stars when the interval is infinite), so a method
-with one more per-star feature (colour) reuses the same loop.
+with one more per-star feature (colour) reuses the same loop. Window sizes (which triads are cheapest,
+which side is the widest) come from a coarse cumulative count of the pair angles
+(:func:`pair_count_table`, a few tens of kB that stay in cache) rather than from the large k-vector.
+
+One call per frame. :func:`identify_pyramid_detections` takes the raw detections to labels and attitude:
+:func:`prepare_detections` (order, detector bounds, unit vectors, duplicates, angle tables), the
+:func:`smart_triads` of the pool, :func:`pyramid_search` and :func:`solve_identified` (final least
+squares and labels), so :func:`startracker.identify.identify` spends one compiled call on a pyramid frame.
 """
 
 from __future__ import annotations

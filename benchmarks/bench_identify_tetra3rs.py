@@ -46,7 +46,7 @@ from bench_identify_common import machine_line, print_table
 from startracker import cache
 from startracker.catalog import load_catalog
 from startracker.identify import build_database, clear_database_cache, identify
-from startracker.simulation import simulate_identification_frame
+from startracker.simulation import simulate_identification_frame as simulate_frame
 from startracker.optics import camera_preset
 from startracker.rotations import quat_random, quat_to_matrix
 
@@ -200,7 +200,7 @@ def main():
     rows = []
     for label, sigma, n_false in NOISE_CASES + FALSE_CASES:
         frng = np.random.default_rng([args.seed, int(sigma * 10), n_false])
-        frames = [simulate_identification_frame(cat, cam, q, frng, sigma_px=sigma, mag_sigma=0.2, n_false=n_false,
+        frames = [simulate_frame(cat, cam, q, frng, sigma_px=sigma, mag_sigma=0.2, n_false=n_false,
                                  false_among=20 if n_false else None, max_stars=20) for q in attitudes]
         peer = run_peer(py, folder, frames, cam) if py is not None else None
         ref = None

@@ -208,9 +208,9 @@ class Camera:
         """
         xy_arr = as_float_array(xy, "xy", last_dim=2)
         single = xy_arr.ndim == 1
-        ideal = self.undistort_px_to_mm(xy_arr.reshape(-1, 2))
-        v = np.column_stack([ideal, np.full(len(ideal), self.focal_length_mm)])
-        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        cx, cy = self.principal_point
+        v = optics_kernels.unproject_pinhole(np.ascontiguousarray(xy_arr.reshape(-1, 2)), float(self.focal_length_mm),
+                                             float(self.distortion_k1_per_mm2), self.pixel_size_mm, cx, cy)
         return v[0] if single else v
 
     def boresight_body(self) -> np.ndarray:

@@ -13,7 +13,7 @@ from startracker.identify.database import database_key
 from startracker.identify.frame import IdentifyOptions, prepare_frame
 from startracker.identify.pairs import join_equal
 from startracker.identify.pyramid import PairCandidates, triangles
-from startracker.simulation import score_result, simulate_identification_frame
+from startracker.simulation import score_result, simulate_identification_frame as simulate_frame
 from startracker.kernels.identify import (
     binom_tail,
     build_sky_grid,
@@ -151,7 +151,7 @@ def test_compiled_pyramid_finds_the_true_triangle_of_the_numpy_search(zy3):
     rng = np.random.default_rng(6)
     opts = IdentifyOptions()
     for _ in range(20):
-        f = simulate_identification_frame(cat, cam, quat_random(rng), rng, sigma_px=0.5, max_stars=20)
+        f = simulate_frame(cat, cam, quat_random(rng), rng, sigma_px=0.5, max_stars=20)
         fr = prepare_frame(f.xy, cam, f.intensities, opts, n_angles=12)
         hyp = triangles(db, fr, PairCandidates(db.pairs, fr), 0, 1, 2)
         true = [int(np.flatnonzero(db.nav.hip == h)[0]) if h in db.nav.hip else -1 for h in f.hip[fr.index[:3]]]
@@ -169,7 +169,7 @@ def test_zero_wrong_with_many_false_stars(zy3, method):
     rng = np.random.default_rng(7)
     wrong = correct = 0
     for q in quat_random(rng, 40):
-        f = simulate_identification_frame(cat, cam, q, rng, sigma_px=0.5, mag_sigma=0.2, n_false=10, false_among=20, max_stars=20)
+        f = simulate_frame(cat, cam, q, rng, sigma_px=0.5, mag_sigma=0.2, n_false=10, false_among=20, max_stars=20)
         s = score_result(identify(f.xy, cam, cat, method=method, intensities=f.intensities, database=db), f)
         wrong += s == "wrong"
         correct += s == "correct"
@@ -200,7 +200,7 @@ def test_database_disk_round_trip(tmp_path):
     assert (built.clumping3, built.density_eff_per_sr) == (loaded.clumping3, loaded.density_eff_per_sr)
     rng = np.random.default_rng(8)
     for q in quat_random(rng, 10):
-        f = simulate_identification_frame(cat, cam, q, rng, sigma_px=0.5)
+        f = simulate_frame(cat, cam, q, rng, sigma_px=0.5)
         a = identify(f.xy, cam, cat, database=built)
         b = identify(f.xy, cam, cat, database=loaded)
         assert a.success == b.success and np.array_equal(a.star_ids, b.star_ids)
@@ -242,3 +242,104 @@ def test_cache_dir_follows_the_environment(monkeypatch, tmp_path):
     assert cache.cache_dir() == tmp_path / "xdg" / "startracker-gym"
     monkeypatch.setenv("STARTRACKER_CACHE_DIR", "")
     assert cache.cache_dir() is None
+
+
+@pytest.mark.parametrize("preset", ["zy3", "paper004"])
+def test_prepared_frame_equals_numpy_reference(preset):
+    """prepare_frame (one compiled call): brightest first (stable), off-detector points and duplicates
+    dropped, unit vectors, magnitudes and the angle / window tables as a plain numpy computation gives."""
+    cam = camera_preset(preset)
+    w, h = cam.resolution
+    rng = np.random.default_rng(11)
+    opts = IdentifyOptions(sigma_px=0.7, floor_arcsec=3.0, mag_zero_point=1.5)
+    for trial in range(20):
+        k = int(rng.integers(0, 30))
+        xy = np.column_stack([rng.uniform(-20, w + 20, k), rng.uniform(-20, h + 20, k)])
+        if k > 4:  # near-duplicates of earlier detections, and exact edge pixels
+            xy[3] = xy[1] + rng.normal(0, 0.005, 2)
+            xy[4] = [-0.5, h - 0.5]
+        inten = rng.choice([1.0, 2.0, 5.0], k) if trial % 2 else None
+        fr = prepare_frame(xy, cam, inten, opts, n_angles=12)
+        # numpy reference
+        order = np.arange(k) if inten is None else np.argsort(-inten, kind="stable")
+        on = (xy[:, 0] >= -0.5) & (xy[:, 0] <= w - 0.5) & (xy[:, 1] >= -0.5) & (xy[:, 1] <= h - 0.5)
+        order = order[on[order]]
+        u = cam.unproject(xy[order]) if len(order) else np.empty((0, 3))
+        pix = cam.pixel_size_mm / cam.focal_length_mm
+        sigma = 0.7 * pix
+        dup_cos = math.cos(max(0.1 * sigma, 0.05 * pix))
+        keep = [j for j in range(len(u)) if not any(u[i] @ u[j] > dup_cos for i in range(j))]
+        assert np.array_equal(fr.index, order[keep])
+        assert fr.n_dropped == k - len(keep) and fr.n_input == k
+        np.testing.assert_allclose(fr.v, u[keep], rtol=0, atol=1e-15)
+        if inten is None:
+            assert fr.mag is None
+        else:
+            np.testing.assert_allclose(fr.mag, 1.5 - 2.5 * np.log10(inten[fr.index]), rtol=0, atol=1e-13)
+        vm = fr.v[:12]
+        ang = np.arctan2(np.linalg.norm(np.cross(vm[:, None], vm[None]), axis=-1), vm @ vm.T)
+        np.testing.assert_allclose(fr.angle_rad, ang, rtol=0, atol=1e-15)
+        floor = 3.0 * math.pi / 648000.0
+        tol = np.hypot(3.0 * math.sqrt(2.0) * sigma, floor) + 1.1e-4 * ang
+        np.testing.assert_allclose(fr.pair_tol_rad, tol, rtol=1e-14, atol=0)
+        assert fr.match_tol_rad == pytest.approx(math.hypot(4.0 * sigma, floor), rel=1e-14)
+
+
+def test_smart_triads_kernel_equals_mortari_order():
+    """The compiled triad table is the smart order of the Python generator (truncated)."""
+    from startracker.identify.pyramid import smart_triads as smart_triads_py
+    from startracker.kernels.identify import smart_triads
+
+    for n in (0, 2, 3, 4, 7, 12):
+        for cap in (1, 10, 100, 1000):
+            ref = np.array(list(smart_triads_py(n))[:cap], dtype=np.int64).reshape(-1, 3)
+            assert np.array_equal(smart_triads(n, cap), ref)
+
+
+def test_pair_count_estimate_tracks_exact_window_counts(zy3):
+    """The cache-resident count table estimates a window's pairs within the pairs of one bin at each end."""
+    from startracker.kernels.identify import pair_count_table, window_estimate
+
+    _, _, db = zy3
+    s = db.pairs.kvector.sorted_values
+    cdf, bin_rad = pair_count_table(s)
+    rng = np.random.default_rng(12)
+    for _ in range(200):
+        th, tol = rng.uniform(0, s[-1]), rng.uniform(1e-5, 3e-3)
+        exact = 2 * (np.searchsorted(s, th + tol, side="right") - np.searchsorted(s, th - tol, side="left"))
+        per_bin = 2 * max(np.diff(cdf[max(int((th - tol) / bin_rad) - 1, 0):int((th + tol) / bin_rad) + 3]).max(), 1)
+        assert abs(window_estimate(cdf, bin_rad, th - tol, th + tol) - exact) <= 2 * per_bin
+
+
+def test_one_call_pyramid_equals_the_staged_pipeline(zy3):
+    """identify(method="pyramid") runs pixels -> labels in one compiled call; the staged pipeline (frame,
+    pyramid search, final least squares) gives the same labels and attitude on the same scenes, with false
+    stars and detections off the detector too."""
+    from startracker.identify.pyramid import identify_pyramid
+    from startracker.kernels.identify import solve_identified
+
+    cat, cam, db = zy3
+    rng = np.random.default_rng(13)
+    opts = IdentifyOptions()
+    n_ok = 0
+    for t, q in enumerate(quat_random(rng, 30)):
+        f = simulate_frame(cat, cam, q, rng, sigma_px=0.5, mag_sigma=0.2, n_false=5 * (t % 3), false_among=20,
+                           max_stars=20)
+        xy = f.xy.copy()
+        if t % 4 == 0:
+            xy[-1] = [-3.0, 10.0]
+        r = identify(xy, cam, cat, intensities=f.intensities, database=db)
+        fr = prepare_frame(xy, cam, f.intensities, opts, n_angles=12)
+        match, status, n_hyp = identify_pyramid(db, fr, opts)
+        assert r.n_hypotheses == n_hyp
+        if match is None:
+            assert not r.success and r.status == status and np.all(r.star_ids == -1)
+            continue
+        ok, q_ref, rms, cov, ids = solve_identified(fr.v, db.nav.vectors, db.nav.hip, fr.index, match.det,
+                                                    match.nav, fr.n_input, fr.sigma_rad)
+        assert r.success and r.status == "ok"
+        assert np.array_equal(r.star_ids, ids) and np.array_equal(r.q_cam_to_icrs, q_ref)
+        assert r.n_matched == match.n_matched and r.n_required == match.n_required
+        assert r.residual_arcsec == pytest.approx(rms * 206264.80624709636, rel=1e-12)
+        n_ok += 1
+    assert n_ok >= 25

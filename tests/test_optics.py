@@ -98,3 +98,50 @@ def test_bad_vectors_raise():
         cam.project(np.ones((2, 2)))
     with pytest.raises(ValueError, match="xy"):
         cam.unproject([[np.nan, 1.0]])
+
+
+def _radius_closed_form(rd, m):
+    """Undistorted radius: the root of m r³ + r − r_d = 0 on the monotone branch (Cardano / Viète)."""
+    if m == 0.0 or rd == 0.0:
+        return rd
+    p, q = 1.0 / m, -rd / m  # r³ + p r + q = 0
+    disc = q * q / 4.0 + p**3 / 27.0
+    if disc >= 0.0:  # one real root (m > 0)
+        s = np.sqrt(disc)
+        return float(np.cbrt(-q / 2.0 + s) + np.cbrt(-q / 2.0 - s))
+    # three real roots (m < 0): the smallest positive one is below the fold radius 1/sqrt(-3m)
+    roots = [2.0 * np.sqrt(-p / 3.0) * np.cos(np.arccos(1.5 * q / p * np.sqrt(-3.0 / p)) / 3.0 - 2.0 * np.pi * k / 3.0)
+             for k in range(3)]
+    return float(min(r for r in roots if r > 0))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-0.5, 2063.5), st.floats(-0.5, 1543.5), st.sampled_from([-3e-5, 0.0, 4.9e-5, 2e-4]))
+def test_unproject_kernel_matches_closed_form(col, row, m):
+    from startracker.kernels.optics import unproject_pinhole
+
+    cam = Camera(resolution=(2064, 1544), pixel_size_um=3.45, focal_length_mm=25.0, principal_point=(1032.0, 772.0),
+                 distortion_k1_per_mm2=m)
+    dx, dy = (col - 1032.0) * 3.45e-3, (row - 772.0) * 3.45e-3
+    rd = np.hypot(dx, dy)
+    r = _radius_closed_form(rd, m)
+    scale = r / rd if rd > 0 else 1.0
+    expected = np.array([dx * scale, dy * scale, 25.0])
+    expected /= np.linalg.norm(expected)
+    v = unproject_pinhole(np.array([[col, row]]), 25.0, m, 3.45e-3, 1032.0, 772.0)
+    np.testing.assert_allclose(v[0], expected, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(cam.unproject([col, row]), expected, rtol=0, atol=1e-13)
+    assert abs(np.linalg.norm(v[0]) - 1.0) < 1e-15 and v[0, 2] > 0
+
+
+def test_unproject_shapes_and_checks():
+    cam = camera_preset("paper004")
+    xy = np.array([[10.0, 20.0], [1032.0, 772.0], [2000.0, 1500.0]])
+    v = cam.unproject(xy)
+    assert v.shape == (3, 3) and cam.unproject(xy[1]).shape == (3,)
+    np.testing.assert_allclose(v[1], [0.0, 0.0, 1.0], atol=1e-15)
+    np.testing.assert_array_equal(cam.unproject(xy[:, :].tolist()), v)
+    with pytest.raises(ValueError, match="xy"):
+        cam.unproject([[1.0, 2.0, 3.0]])
+    with pytest.raises(ValueError, match="xy"):
+        cam.unproject([[np.inf, 1.0]])

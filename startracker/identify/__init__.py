@@ -26,12 +26,14 @@ from startracker.attitude import RAD_TO_ARCSEC
 from startracker.catalog import StarCatalog
 from startracker.identify.brightness import identify_brightness
 from startracker.identify.database import StarDatabase, build_database, clear_database_cache, default_database
-from startracker.identify.frame import IdentifyOptions, prepare_frame
+from startracker.identify.frame import IdentifyOptions, detection_arguments, prepare_frame
 from startracker.identify.pattern_string import identify_pattern_string
-from startracker.identify.pyramid import identify_pyramid
+from startracker.identify.pyramid import CHEAP_FIRST, SEARCH_STATUS, identify_pyramid
 from startracker.identify.result import IdentificationResult
 from startracker.identify.voting import identify_voting
-from startracker.kernels.identify import solve_attitude
+from startracker.identify import verification
+from startracker.kernels.identify import (STATUS_FEW, STATUS_PARALLEL, STATUS_RESIDUAL, identify_pyramid_detections,
+                                          solve_identified)
 from startracker.optics import Camera
 
 __all__ = [
@@ -127,56 +129,88 @@ def identify(
         database = default_database(catalog, camera)
     elif not isinstance(database, StarDatabase):
         raise TypeError(f"database must be a StarDatabase, got {type(database).__name__}")
-    elif database.camera != camera:
+    elif database.camera is not camera and database.camera != camera:
         raise ValueError("database was built for another camera")
     t0 = time.perf_counter()
+    if method == "pyramid" and database.usable:
+        return _identify_pyramid(xy, camera, intensities, database, opts, t0)
     frame = prepare_frame(xy, camera, intensities, opts, n_angles=None if method == "string" else (opts.max_stars or _POOL[method]))
-    k = frame.n_input
-    star_ids = np.full(k, -1, dtype=np.int64)
-
-    def failure(status, n_req=0, n_hyp=0):
-        return IdentificationResult(
-            success=False,
-            star_ids=star_ids,
-            q_cam_to_icrs=_IDENTITY.copy(),
-            n_matched=0,
-            residual_arcsec=float("inf"),
-            latency_ms=(time.perf_counter() - t0) * 1e3,
-            status=status,
-            method=method,
-            n_required=n_req,
-            n_hypotheses=n_hyp,
-            covariance_rad2=np.diag([np.inf] * 3),
-        )
-
     if frame.n < 3:
         extra = f" ({frame.n_dropped} off the detector or duplicated)" if frame.n_dropped else ""
-        return failure(f"fewer than 3 usable detections{extra}")
-    if len(database.pairs) == 0 or database.mean_stars_per_fov < 1.0:
-        return failure(
+        return _failure(frame.n_input, method, t0, f"fewer than 3 usable detections{extra}")
+    if not database.usable:
+        return _failure(frame.n_input, method, t0, (
             f"catalog too sparse for the field of view ({database.mean_stars_per_fov:.2f} stars per frame on "
-            f"average, {len(database.pairs)} star pairs)"
-        )
+            f"average, {len(database.pairs)} star pairs)"))
     match, status, n_hyp = METHODS[method](database, frame, opts)
     if match is None:
-        return failure(status, n_hyp=n_hyp)
-    # Final least squares on every match (compiled; the same solution as solve_wahba_single).
-    ok, q, rms_rad, cov = solve_attitude(frame.v[match.det], database.nav.vectors[match.nav], frame.sigma_rad)
+        return _failure(frame.n_input, method, t0, status, n_hyp=n_hyp)
+    # Final least squares on every match (compiled; the same solution as solve_wahba_single) and the labels.
+    ok, q, rms_rad, cov, star_ids = solve_identified(frame.v, database.nav.vectors, database.nav.hip, frame.index,
+                                                     match.det, match.nav, frame.n_input, frame.sigma_rad)
     if not ok:
-        return failure("final attitude rejected: vectors are parallel: attitude not observable", match.n_required, n_hyp)
+        return _failure(frame.n_input, method, t0, _PARALLEL, match.n_required, n_hyp)
     if rms_rad > frame.match_tol_rad:
-        return failure("final attitude rejected: residual above the verification radius", match.n_required, n_hyp)
-    star_ids[frame.index[match.det]] = database.nav.hip[match.nav]
+        return _failure(frame.n_input, method, t0, _RESIDUAL, match.n_required, n_hyp)
     return IdentificationResult(
         success=True,
         star_ids=star_ids,
         q_cam_to_icrs=q,
-        n_matched=int(match.n_matched),
-        residual_arcsec=float(rms_rad * RAD_TO_ARCSEC),
+        n_matched=len(match.det),
+        residual_arcsec=rms_rad * RAD_TO_ARCSEC,
         latency_ms=(time.perf_counter() - t0) * 1e3,
         status="ok",
         method=method,
         n_required=int(match.n_required),
         n_hypotheses=int(n_hyp),
         covariance_rad2=cov,
+    )
+
+
+def _identify_pyramid(xy, camera, intensities, database, opts, t0) -> IdentificationResult:
+    """The pyramid without a candidate filter: one compiled call from pixels to labels and attitude."""
+    pool = opts.max_stars or _POOL["pyramid"]
+    args, k, sigma_rad, match_tol = detection_arguments(xy, camera, intensities, opts, pool)
+    code, star_ids, q, cov, n_matched, n_req, n_hyp, n_usable, rms_rad = identify_pyramid_detections(
+        *args, pool, opts.max_triads, CHEAP_FIRST, *database.search_arrays, database.nav.hip, database.clumping3,
+        database.density_eff_per_sr, sigma_rad, match_tol, opts.false_alarm, verification.MAX_ROUNDS,
+        verification.STABLE_FIT, verification.MISFIT_P)
+    if code == 0:
+        return IdentificationResult(
+            success=True,
+            star_ids=star_ids,
+            q_cam_to_icrs=q,
+            n_matched=n_matched,
+            residual_arcsec=rms_rad * RAD_TO_ARCSEC,
+            latency_ms=(time.perf_counter() - t0) * 1e3,
+            status="ok",
+            method="pyramid",
+            n_required=n_req,
+            n_hypotheses=n_hyp,
+            covariance_rad2=cov,
+        )
+    if code == STATUS_FEW:
+        extra = f" ({k - n_usable} off the detector or duplicated)" if n_usable < k else ""
+        return _failure(k, "pyramid", t0, f"fewer than 3 usable detections{extra}")
+    status = {STATUS_PARALLEL: _PARALLEL, STATUS_RESIDUAL: _RESIDUAL}.get(code) or SEARCH_STATUS[code]
+    return _failure(k, "pyramid", t0, status, n_req, n_hyp)
+
+
+_PARALLEL = "final attitude rejected: vectors are parallel: attitude not observable"
+_RESIDUAL = "final attitude rejected: residual above the verification radius"
+
+
+def _failure(k: int, method: str, t0: float, status: str, n_req: int = 0, n_hyp: int = 0) -> IdentificationResult:
+    return IdentificationResult(
+        success=False,
+        star_ids=np.full(k, -1, dtype=np.int64),
+        q_cam_to_icrs=_IDENTITY.copy(),
+        n_matched=0,
+        residual_arcsec=float("inf"),
+        latency_ms=(time.perf_counter() - t0) * 1e3,
+        status=status,
+        method=method,
+        n_required=n_req,
+        n_hypotheses=n_hyp,
+        covariance_rad2=np.diag([np.inf] * 3),
     )

@@ -16,6 +16,7 @@ stars at load (about a millisecond). A corrupt or stale file is rebuilt, never t
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import math
 import time
@@ -27,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from startracker import cache as disk_cache
 from startracker.catalog import StarCatalog, select_navigation_stars
-from startracker.kernels.identify import GRID_CELLS, build_sky_grid
+from startracker.kernels.identify import GRID_CELLS, build_sky_grid, pair_count_table
 from startracker.identify.pairs import StarPairCatalog, build_pair_catalog
 from startracker.kvector import KVector
 from startracker.identify.pattern_string import PatternCatalog, build_pattern_catalog
@@ -66,7 +67,7 @@ class StarDatabase:
         Wall-clock build time.
     options : dict
         The build options.
-    grid_start, grid_stars : ndarray of int64
+    grid_start, grid_stars : ndarray of int32
         Sky grid of the navigation stars (:func:`startracker.kernels.identify.build_sky_grid`), the
         compiled kernels' nearest-star index.
     grid_cells : int
@@ -114,12 +115,28 @@ class StarDatabase:
         """Size of the pattern-string catalog with paper 003's storage layout, bytes."""
         return self.patterns.paper_bytes
 
-    @property
+    @functools.cached_property
     def mean_stars_per_fov(self) -> float:
         """Mean number of navigation stars on the detector (uniform sky)."""
         hx, hy = self.camera.half_fov_rad
         omega = 4.0 * math.asin(math.sin(hx) * math.sin(hy))  # solid angle of the rectangular field
         return self.n_stars * omega / (4.0 * math.pi)
+
+    @functools.cached_property
+    def search_arrays(self) -> tuple:
+        """The database as the compiled pyramid takes it, gathered once: ``(nav, sorted pair angles, k-vector,
+        a1, b1, first, second, grid_start, grid_stars, grid_cells, count_cdf, count_bin_rad)`` (see
+        :func:`startracker.kernels.identify.pyramid_search`; the count table is
+        :func:`startracker.kernels.identify.pair_count_table`)."""
+        kv = self.pairs.kvector
+        cdf, bin_rad = pair_count_table(kv.sorted_values)
+        return (self.nav.vectors, kv.sorted_values, kv.k, float(kv.a1), float(kv.b1), self.pairs.first,
+                self.pairs.second, self.grid_start, self.grid_stars, int(self.grid_cells), cdf, float(bin_rad))
+
+    @functools.cached_property
+    def usable(self) -> bool:
+        """Whether the catalog is dense enough for lost-in-space (some pairs, at least a star per frame)."""
+        return len(self.pairs) > 0 and self.mean_stars_per_fov >= 1.0
 
     def p_random(self, tol_rad: float) -> float:
         """Probability that a direction falls within ``tol_rad`` of some navigation star by chance."""

@@ -2,7 +2,8 @@
 
 Preparation: check the arrays, order the detections brightest first, drop points off the detector and
 duplicates (they keep the label −1), turn pixels into camera-frame unit vectors with
-:meth:`Camera.unproject`, and tabulate the inter-star angles and their tolerances once.
+:meth:`Camera.unproject`'s model, and tabulate the inter-star angles and their tolerances once (one
+compiled call, :func:`startracker.kernels.identify.prepare_detections`).
 
 Tolerances. With a centroid noise of ``sigma_px`` (1σ per axis) the angle between two stars is off by
 ``√2 σ`` (1σ). A pair window is ``± (pair_sigmas · √2 σ ⊕ floor) + aberration_scale · θ`` (⊕: root sum
@@ -13,15 +14,16 @@ verification radius is ``match_sigmas · σ ⊕ floor``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import numpy as np
 
-from startracker.kernels.identify import frame_tables
+from startracker.kernels.identify import prepare_detections
 from startracker.optics import Camera
 from startracker.validation import as_float_array
 
-__all__ = ["IdentifyOptions", "Frame", "prepare_frame", "ARCSEC"]
+__all__ = ["IdentifyOptions", "Frame", "prepare_frame", "detection_arguments", "ARCSEC"]
 
 ARCSEC = np.pi / (180.0 * 3600.0)
 
@@ -175,6 +177,48 @@ class Frame:
         return len(self.v)
 
 
+def detection_arguments(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angles: int | None = None):
+    """Check detections and turn them, the camera and the options into the arguments of
+    :func:`startracker.kernels.identify.prepare_detections`.
+
+    Returns
+    -------
+    args : tuple
+        The kernel's arguments.
+    k : int
+        Rows of ``xy``.
+    sigma_rad, match_tol_rad : float
+        Centroid noise as an angle and the verification radius.
+
+    Raises
+    ------
+    ValueError
+        ``xy`` is not a finite (K, 2) array, or ``intensities`` is not a finite positive (K,) array.
+    """
+    xy = _finite_array(xy, "xy")
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise ValueError(f"xy must have shape (K, 2) (column, row in pixels), got {xy.shape}")
+    k = len(xy)
+    if intensities is not None:
+        inten = _finite_array(intensities, "intensities")
+        if inten.shape != (k,):
+            raise ValueError(f"intensities must have shape ({k},) to match xy, got {inten.shape}")
+        if k and not np.minimum.reduce(inten) > 0:
+            raise ValueError("intensities must be positive")
+    else:
+        inten = _NO_INTENSITIES
+    c = _camera_constants(camera)
+    sigma_rad = opts.sigma_px * c[7]
+    floor = opts.floor_arcsec * ARCSEC
+    # Duplicates (closer than a tenth of the noise or 0.05 px): keep the brighter.
+    dup_rad = max(0.1 * sigma_rad, 0.05 * c[7])
+    n_tab = k if n_angles is None else int(n_angles)
+    args = (np.ascontiguousarray(xy), np.ascontiguousarray(inten), intensities is not None,
+            float(opts.mag_zero_point), c[0], c[1], c[2], c[3], c[4], c[5], c[6], n_tab, math.cos(dup_rad),
+            opts.pair_sigmas * _SQRT2 * sigma_rad, floor, float(opts.aberration_scale))
+    return args, k, sigma_rad, math.hypot(opts.match_sigmas * sigma_rad, floor)
+
+
 def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angles: int | None = None) -> Frame:
     """Validate and prepare detections (see the module docstring).
 
@@ -185,47 +229,43 @@ def prepare_frame(xy, camera: Camera, intensities, opts: IdentifyOptions, n_angl
     ValueError
         ``xy`` is not a finite (K, 2) array, or ``intensities`` is not a finite positive (K,) array.
     """
-    xy = as_float_array(xy, "xy")
-    if xy.ndim != 2 or xy.shape[1] != 2:
-        raise ValueError(f"xy must have shape (K, 2) (column, row in pixels), got {xy.shape}")
-    k = len(xy)
-    if intensities is not None:
-        inten = as_float_array(intensities, "intensities")
-        if inten.shape != (k,):
-            raise ValueError(f"intensities must have shape ({k},) to match xy, got {inten.shape}")
-        if np.any(inten <= 0):
-            raise ValueError("intensities must be positive")
-        order = np.argsort(-inten, kind="stable")
-        mag_all = opts.mag_zero_point - 2.5 * np.log10(inten)
-    else:
-        order = np.arange(k)
-        mag_all = None
-    w, h = camera.resolution
-    x, y = xy[:, 0], xy[:, 1]
-    on = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5)
-    if not on.all():
-        order = order[on[order]]
-    v = camera.unproject(xy[order]) if len(order) else np.empty((0, 3))
-    pix_rad = camera.pixel_size_mm / camera.focal_length_mm
-    sigma_rad = opts.sigma_px * pix_rad
-    floor = opts.floor_arcsec * ARCSEC
-    # Duplicates (closer than a tenth of the noise or 0.05 px): keep the brighter. Tables compiled.
-    dup_rad = max(0.1 * sigma_rad, 0.05 * pix_rad)
-    n_tab = len(v) if n_angles is None else int(n_angles)
-    keep, ang, pair_tol = frame_tables(np.ascontiguousarray(v), n_tab, float(np.cos(dup_rad)),
-                                       opts.pair_sigmas * np.sqrt(2.0) * sigma_rad, floor, opts.aberration_scale)
-    if not keep.all():
-        order, v = order[keep], v[keep]
-    n_dropped = k - len(order)
-    match_tol = float(np.hypot(opts.match_sigmas * sigma_rad, floor))
+    args, k, sigma_rad, match_tol = detection_arguments(xy, camera, intensities, opts, n_angles)
+    index, v, mag, ang, pair_tol = prepare_detections(*args)
     return Frame(
         v=v,
-        mag=None if mag_all is None else mag_all[order],
-        index=order,
+        mag=None if intensities is None else mag,
+        index=index,
         n_input=k,
         angle_rad=ang,
         pair_tol_rad=pair_tol,
         match_tol_rad=match_tol,
         sigma_rad=sigma_rad,
-        n_dropped=n_dropped,
+        n_dropped=k - len(index),
     )
+
+
+_NO_INTENSITIES = np.ones(0)
+_SQRT2 = math.sqrt(2.0)
+_CAMERA_CONSTANTS: dict = {}
+
+
+def _finite_array(a, name: str) -> np.ndarray:
+    """``a`` as a finite float64 array (a float64 array whose sum is finite holds no NaN or inf)."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and math.isfinite(np.add.reduce(a, axis=None)):
+        return a
+    return as_float_array(a, name)
+
+
+def _camera_constants(camera: Camera) -> tuple:
+    """The camera model as plain numbers for the frame kernel, computed once per camera object."""
+    hit = _CAMERA_CONSTANTS.get(id(camera))
+    if hit is not None and hit[0] is camera:
+        return hit[1]
+    w, h = camera.resolution
+    cx, cy = camera.principal_point
+    c = (int(w), int(h), float(camera.focal_length_mm), float(camera.distortion_k1_per_mm2),
+         float(camera.pixel_size_mm), float(cx), float(cy), float(camera.pixel_size_mm / camera.focal_length_mm))
+    if len(_CAMERA_CONSTANTS) > 64:
+        _CAMERA_CONSTANTS.clear()
+    _CAMERA_CONSTANTS[id(camera)] = (camera, c)  # holding the camera keeps its id from being reused
+    return c

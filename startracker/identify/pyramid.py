@@ -13,7 +13,9 @@ A hypothesis needs a fourth detection ``r`` whose catalog star has the right ang
 (the pyramid); then the common verification decides, and reporting failure is preferred to a
 low-confidence answer (two different verified attitudes make the frame ambiguous).
 
-The loop runs compiled (:func:`startracker.kernels.identify.pyramid_search`); the numpy pieces
+The loop runs compiled (:func:`startracker.kernels.identify.pyramid_search`; without a candidate filter
+:func:`startracker.identify.identify` runs the whole frame in one compiled call,
+:func:`startracker.kernels.identify.identify_pyramid_detections`); the numpy pieces
 (:class:`PairCandidates`, :func:`triangles`, :func:`confirm_fourth`) serve the brightness-referenced
 method and as the reference the kernel is tested against. :class:`CandidateFilter` makes the candidate
 source injectable (colour-aided identification).
@@ -218,6 +220,8 @@ class CandidateFilter:
 
 
 _NO_KEY = np.zeros(1)
+_ONES = np.ones(256)  # the per-detection λ factors without a filter (only the first n are read)
+SEARCH_STATUS = {1: "ambiguous: two different attitudes verified", 2: "no triad was confirmed and verified"}
 CHEAP_FIRST = 10  # triads are tried cheapest first within blocks of this many (smart order across blocks)
 
 
@@ -241,9 +245,9 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
         return None, "fewer than 3 usable detections", 0
     pool = min(n, opts.max_stars or 12, len(frame.angle_rad))
     triads = triad_table(pool, opts.max_triads)
-    kv = db.pairs.kvector
     if candidates is None:
-        key, lo, hi, rate, filtered = _NO_KEY, _NO_KEY, _NO_KEY, np.ones(n), False
+        rate = _ONES if n <= len(_ONES) else np.ones(n)
+        key, lo, hi, filtered = _NO_KEY, _NO_KEY, _NO_KEY, False
     else:
         key = np.ascontiguousarray(candidates.star_key, dtype=np.float64)
         lo = np.ascontiguousarray(candidates.lo, dtype=np.float64)
@@ -251,8 +255,7 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
         rate = np.ascontiguousarray(candidates.false_rate_scale, dtype=np.float64)
         filtered = True
     status, det, nav, n_req, n_hyp, rot, rms, counts = pyramid_search(
-        frame.v, frame.angle_rad, frame.pair_tol_rad, triads, CHEAP_FIRST, pool, db.nav.vectors, kv.sorted_values, kv.k,
-        kv.a1, kv.b1, db.pairs.first, db.pairs.second, db.grid_start, db.grid_stars, db.grid_cells, key, lo, hi,
+        frame.v, frame.angle_rad, frame.pair_tol_rad, triads, CHEAP_FIRST, pool, *db.search_arrays, key, lo, hi,
         filtered, rate, db.clumping3, db.density_eff_per_sr, frame.match_tol_rad, opts.false_alarm,
         verification.MAX_ROUNDS, verification.STABLE_FIT, verification.MISFIT_P)
     if candidates is not None:
@@ -260,6 +263,4 @@ def identify_pyramid(db, frame: Frame, opts: IdentifyOptions,
         candidates.pairs_kept += int(counts[1])
     if status == 0:
         return Match(rot=rot, det=det, nav=nav, n_required=int(n_req), rms_rad=float(rms)), "ok", int(n_hyp)
-    if status == 1:
-        return None, "ambiguous: two different attitudes verified", int(n_hyp)
-    return None, "no triad was confirmed and verified", int(n_hyp)
+    return None, SEARCH_STATUS[int(status)], int(n_hyp)

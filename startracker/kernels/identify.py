@@ -16,7 +16,14 @@ the fourth star, the verification with the false-alarm rule and the misfit test,
 between verified attitudes of one triad (documented in :mod:`startracker.identify.verification`).
 The candidate source is data: each detection ``p`` may only stand for the catalog stars whose
 ``star_key`` lies in ``[key_lo[p], key_hi[p]]`` (all stars when the interval is infinite), so a method
-with one more per-star feature (colour) reuses the same loop.
+with one more per-star feature (colour) reuses the same loop. Window sizes (which triads are cheapest,
+which side is the widest) come from a coarse cumulative count of the pair angles
+(:func:`pair_count_table`, a few tens of kB that stay in cache) rather than from the large k-vector.
+
+One call per frame. :func:`identify_pyramid_detections` takes the raw detections to labels and attitude:
+:func:`prepare_detections` (order, detector bounds, unit vectors, duplicates, angle tables), the
+:func:`smart_triads` of the pool, :func:`pyramid_search` and :func:`solve_identified` (final least
+squares and labels), so :func:`startracker.identify.identify` spends one compiled call on a pyramid frame.
 
 The module is over 600 lines because it holds the compiled core of every identification method: the
 pyramid loop, the shared verification and least squares, the vote table and the frame tables call the same
@@ -30,6 +37,8 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.optics import unproject_pinhole
+
 __all__ = [
     "rotate_all",
     "triple_product",
@@ -38,7 +47,7 @@ __all__ = [
     "det3",
     "inv_transpose3",
     "cast_votes",
-    "frame_tables",
+    "prepare_detections",
     "GRID_CELLS",
     "build_sky_grid",
     "grid_cell",
@@ -47,6 +56,7 @@ __all__ = [
     "rotation_svd",
     "quat_from_rotation",
     "solve_attitude",
+    "solve_identified",
     "binom_tail",
     "poisson_tail",
     "required_matches",
@@ -55,6 +65,11 @@ __all__ = [
     "refine_matches",
     "verify_hypothesis",
     "pyramid_search",
+    "smart_triads",
+    "identify_pyramid_detections",
+    "pair_count_table",
+    "window_estimate",
+    "cdf_at",
 ]
 
 GRID_CELLS = 64  # cells per axis of the sky grid: 0.031 rad (1.8°) per cell
@@ -76,15 +91,16 @@ def build_sky_grid(vectors: np.ndarray, g: int = GRID_CELLS) -> tuple[np.ndarray
 
     Returns
     -------
-    cell_start : ndarray of int64, shape (g³ + 1,)
-    cell_stars : ndarray of int64, shape (N,)
-        Star indices sorted by cell (ascending within a cell).
+    cell_start : ndarray of int32, shape (g³ + 1,)
+    cell_stars : ndarray of int32, shape (N,)
+        Star indices sorted by cell (ascending within a cell). int32 halves the memory the random
+        look-ups of a frame touch.
     """
     v = np.asarray(vectors, dtype=np.float64).reshape(-1, 3)
     ijk = np.clip(((v + 1.0) * (0.5 * g)).astype(np.int64), 0, g - 1)
     cell = (ijk[:, 0] * g + ijk[:, 1]) * g + ijk[:, 2]
-    cell_stars = np.argsort(cell, kind="stable").astype(np.int64)
-    cell_start = np.zeros(g**3 + 1, dtype=np.int64)
+    cell_stars = np.argsort(cell, kind="stable").astype(np.int32)
+    cell_start = np.zeros(g**3 + 1, dtype=np.int32)
     np.cumsum(np.bincount(cell, minlength=g**3), out=cell_start[1:])
     return cell_start, cell_stars
 
@@ -110,7 +126,7 @@ def nearest_two(w, nav, cell_start, cell_stars, g, max_chord, dist, idx):
         Directions (ICRS, unit).
     nav : ndarray, shape (N, 3)
         Navigation star unit vectors.
-    cell_start, cell_stars : ndarray of int64
+    cell_start, cell_stars : ndarray of int32
         Sky grid of ``nav`` (:func:`build_sky_grid`).
     g : int
         Cells per axis.
@@ -375,6 +391,47 @@ def solve_attitude(b, r, sigma_rad):
         a = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), rb0 * r[t, 0] + rb1 * r[t, 1] + rb2 * r[t, 2])
         acc += a * a
     return True, quat_from_rotation(rot), math.sqrt(acc / m), np.linalg.inv(info)
+
+
+@njit(cache=True)
+def solve_identified(v, nav, nav_hip, index, det, nav_idx, n_input, sigma_rad):
+    """Final least squares on a verified match set, and the HIP label of every input detection.
+
+    Parameters
+    ----------
+    v : ndarray, shape (n, 3)
+        Usable detections (camera frame).
+    nav : ndarray, shape (N, 3)
+        Navigation stars (ICRS).
+    nav_hip : ndarray of int64, shape (N,)
+        Their HIP numbers.
+    index : ndarray of int64, shape (n,)
+        Input row of each usable detection.
+    det, nav_idx : ndarray of int64, shape (m,)
+        Detection ``det[t]`` is navigation star ``nav_idx[t]``.
+    n_input : int
+        Input detections.
+    sigma_rad : float
+        1σ angular noise of a measured direction, rad.
+
+    Returns
+    -------
+    ok, q, rms_rad, cov
+        As :func:`solve_attitude` on the matched pairs.
+    star_ids : ndarray of int64, shape (n_input,)
+        HIP number of each input detection, −1 for the unmatched.
+    """
+    m = det.shape[0]
+    b = np.empty((m, 3))
+    r = np.empty((m, 3))
+    star_ids = np.full(n_input, -1, dtype=np.int64)
+    for t in range(m):
+        for ax in range(3):
+            b[t, ax] = v[det[t], ax]
+            r[t, ax] = nav[nav_idx[t], ax]
+        star_ids[index[det[t]]] = nav_hip[nav_idx[t]]
+    ok, q, rms, cov = solve_attitude(b, r, sigma_rad)
+    return ok, q, rms, cov, star_ids
 
 
 @njit(cache=True)
@@ -677,9 +734,52 @@ def window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, fil
     return 2 * (stop - start), kept
 
 
+def pair_count_table(sorted_angles: np.ndarray, n_bins: int = 8192) -> tuple[np.ndarray, float]:
+    """Coarse cumulative count of sorted pair angles, for window-size estimates that stay in cache.
+
+    Parameters
+    ----------
+    sorted_angles : ndarray, shape (M,)
+        Ascending pair angles, rad.
+    n_bins : int
+        Bins over ``[0, max angle]``.
+
+    Returns
+    -------
+    cdf : ndarray, shape (n_bins + 1,)
+        ``cdf[b]`` = number of angles below ``b · bin_rad`` (float64).
+    bin_rad : float
+        Bin width, rad.
+    """
+    top = float(sorted_angles[-1]) if len(sorted_angles) else 1.0
+    bin_rad = max(top, 1e-12) * (1.0 + 1e-9) / n_bins
+    cdf = np.searchsorted(sorted_angles, np.arange(n_bins + 1) * bin_rad, side="left").astype(np.float64)
+    return cdf, bin_rad
+
+
+@njit(cache=True)
+def cdf_at(cdf, bin_rad, x):
+    """The count table of :func:`pair_count_table` at angle ``x`` (linear inside a bin)."""
+    nb = cdf.shape[0] - 1
+    u = x / bin_rad
+    if u <= 0.0:
+        return 0.0
+    if u >= nb:
+        return cdf[nb]
+    b = int(u)
+    return cdf[b] + (u - b) * (cdf[b + 1] - cdf[b])
+
+
+@njit(cache=True)
+def window_estimate(cdf, bin_rad, lo, hi):
+    """Estimated catalog pair candidates (both orientations) with angles in ``[lo, hi]``, from
+    :func:`pair_count_table`."""
+    return 2.0 * (cdf_at(cdf, bin_rad, hi) - cdf_at(cdf, bin_rad, lo))
+
+
 @njit(cache=True)
 def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b1, first, second, cell_start, cell_stars,
-                   g, star_key, key_lo, key_hi, filtered, rate, clumping, dens_eff_per_sr, match_tol_rad,
+                   g, count_cdf, count_bin_rad, star_key, key_lo, key_hi, filtered, rate, clumping, dens_eff_per_sr, match_tol_rad,
                    false_alarm, max_rounds, stable_fit, misfit_p):
     """The pyramid hypothesis loop (see the module docstring), up to the first triad that verifies.
 
@@ -703,6 +803,9 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
         Brighter and dimmer star of each pair.
     cell_start, cell_stars, g
         Sky grid of ``nav``.
+    count_cdf, count_bin_rad
+        Coarse cumulative count of the pair angles (:func:`pair_count_table`): the window sizes that order
+        the triads and pick the apex, read without touching the large pair arrays.
     star_key : ndarray, shape (N,)
         Per-star value of the candidate filter.
     key_lo, key_hi : ndarray, shape (n,)
@@ -751,16 +854,20 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
     d1 = np.empty((1, 2))
     i1 = np.empty((1, 2), dtype=np.int64)
     order = np.arange(triads.shape[0])
+    # Window sizes (both orientations) from the coarse count table: a look-up in the large k-vector costs a
+    # cache miss or two per window, and most windows of the pool are never joined.
+    m_ang = ang.shape[0]
+    cnt = np.zeros((m_ang, m_ang))
+    for p in range(min(pool, m_ang)):
+        for q in range(p + 1, min(pool, m_ang)):
+            c = window_estimate(count_cdf, count_bin_rad, ang[p, q] - tol[p, q], ang[p, q] + tol[p, q])
+            cnt[p, q] = c
+            cnt[q, p] = c
     if cheap_first > 0:
         # Cheapest triads first: the cost of a triad is the size of its two shortest windows (the join
         # runs on them). Within blocks of ``cheap_first`` triads of the smart order, so a false star still
         # cannot spoil a long run.
-        cnt = np.zeros((pool, pool), dtype=np.int64)
-        for p in range(pool):
-            for q in range(p + 1, pool):
-                st0, sp0 = kvector_range(s_ang, kk, a1, b1, ang[p, q] - tol[p, q], ang[p, q] + tol[p, q])
-                cnt[p, q] = sp0 - st0
-        cost = np.empty(triads.shape[0], dtype=np.int64)
+        cost = np.empty(triads.shape[0])
         for t in range(triads.shape[0]):
             x, y, z = cnt[triads[t, 0], triads[t, 1]], cnt[triads[t, 0], triads[t, 2]], cnt[triads[t, 1], triads[t, 2]]
             cost[t] = x + y + z - max(x, max(y, z))
@@ -773,24 +880,28 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
         t = order[tt]
         i, j, k = triads[t, 0], triads[t, 1], triads[t, 2]
         # Apex opposite the widest window: the join then runs on the two shortest lists.
-        c_ij, kij = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
-                                  tol, i, j)
-        c_ik, kik = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
-                                  tol, i, k)
-        c_jk, kjk = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
-                                  tol, j, k)
-        if not seen[i, j]:
-            seen[i, j] = True
-            counts[0] += c_ij
-            counts[1] += kij
-        if not seen[i, k]:
-            seen[i, k] = True
-            counts[0] += c_ik
-            counts[1] += kik
-        if not seen[j, k]:
-            seen[j, k] = True
-            counts[0] += c_jk
-            counts[1] += kjk
+        if filtered:
+            c_ij, n_ij = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
+                                      tol, i, j)
+            c_ik, n_ik = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
+                                      tol, i, k)
+            c_jk, n_jk = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
+                                      tol, j, k)
+            if not seen[i, j]:
+                seen[i, j] = True
+                counts[0] += c_ij
+                counts[1] += n_ij
+            if not seen[i, k]:
+                seen[i, k] = True
+                counts[0] += c_ik
+                counts[1] += n_ik
+            if not seen[j, k]:
+                seen[j, k] = True
+                counts[0] += c_jk
+                counts[1] += n_jk
+            kij, kik, kjk = float(n_ij), float(n_ik), float(n_jk)
+        else:
+            kij, kik, kjk = cnt[i, j], cnt[i, k], cnt[j, k]
         if kij >= kik and kij >= kjk:
             i, j, k = k, i, j
         elif kik >= kjk:
@@ -924,6 +1035,103 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
 
 
 @njit(cache=True)
+def smart_triads(n, max_triads):
+    """The first ``max_triads`` triads of Mortari's "smart" order over ``n`` stars.
+
+    ``for dj in 1 .. n-2: for dk in 1 .. n-dj-1: for i in 0 .. n-dj-dk-1: (i, i+dj, i+dj+dk)``.
+
+    Returns
+    -------
+    ndarray of int64, shape (T, 3)
+    """
+    total = n * (n - 1) * (n - 2) // 6 if n >= 3 else 0
+    m = min(total, max_triads)
+    out = np.empty((m, 3), dtype=np.int64)
+    t = 0
+    for dj in range(1, n - 1):
+        for dk in range(1, n - dj):
+            for i in range(0, n - dj - dk):
+                if t == m:
+                    return out
+                out[t, 0], out[t, 1], out[t, 2] = i, i + dj, i + dj + dk
+                t += 1
+    return out
+
+
+STATUS_FEW = 3
+STATUS_PARALLEL = 4
+STATUS_RESIDUAL = 5
+
+
+@njit(cache=True)
+def identify_pyramid_detections(xy, intensities, have_intensities, mag_zero_point, width, height, focal_length_mm,
+                                k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles, dup_cos, pair_sigma_rad, floor_rad,
+                                aberration_scale, max_stars, max_triads, cheap_first, nav, s_ang, kk, a1, b1, first,
+                                second, cell_start, cell_stars, g, count_cdf, count_bin_rad, nav_hip, clumping,
+                                dens_eff_per_sr, sigma_rad, match_tol_rad, false_alarm, max_rounds, stable_fit,
+                                misfit_p):
+    """Pyramid lost-in-space on one frame of detections, in one call: :func:`prepare_detections`, the
+    :func:`smart_triads` of the pool, :func:`pyramid_search` (no candidate filter) and :func:`solve_identified`.
+
+    Parameters
+    ----------
+    xy ... aberration_scale
+        As :func:`prepare_detections`.
+    max_stars : int
+        Largest hypothesis pool (the pool is the ``min(n, max_stars, n_angles)`` brightest usable detections).
+    max_triads, cheap_first : int
+        Triads tried, and the block size of the cheapest-first order (:func:`pyramid_search`).
+    nav ... dens_eff_per_sr
+        The database, as :func:`pyramid_search` takes it; ``nav_hip`` (N,) int64: HIP numbers.
+    sigma_rad, match_tol_rad, false_alarm : float
+        Centroid noise as an angle, verification radius, false-alarm limit.
+    max_rounds, stable_fit, misfit_p
+        Verification constants.
+
+    Returns
+    -------
+    code : int
+        0 identified, 1 ambiguous, 2 nothing verified, 3 fewer than 3 usable detections, 4 final attitude
+        not observable (parallel vectors), 5 final residual above the verification radius.
+    star_ids : ndarray of int64, shape (K,)
+        HIP number of each input detection, −1 when unidentified (all −1 unless code 0).
+    q : ndarray, shape (4,)
+        Camera -> ICRS quaternion (w, x, y, z) of the final least squares (identity unless code 0).
+    cov : ndarray, shape (3, 3)
+        Its covariance, rad² (inf unless code 0).
+    n_matched, n_req, n_hyp, n_usable : int
+        Matches, matches the false-alarm rule asked for, hypotheses verified, usable detections.
+    rms_rad : float
+        RMS residual of the matches (inf unless code 0).
+    """
+    k = xy.shape[0]
+    index, v, mag, ang, tol = prepare_detections(xy, intensities, have_intensities, mag_zero_point, width, height,
+                                                 focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles,
+                                                 dup_cos, pair_sigma_rad, floor_rad, aberration_scale)
+    n = index.shape[0]
+    none_ids = np.full(k, -1, dtype=np.int64)
+    q0 = np.array([1.0, 0.0, 0.0, 0.0])
+    cov0 = np.full((3, 3), np.inf)
+    if n < 3:
+        return STATUS_FEW, none_ids, q0, cov0, 0, 0, 0, n, np.inf
+    pool = min(n, max_stars, ang.shape[0])
+    triads = smart_triads(pool, max_triads)
+    no_key = np.zeros(1)
+    status, det, nav_idx, n_req, n_hyp, rot, rms, counts = pyramid_search(
+        v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b1, first, second, cell_start, cell_stars, g,
+        count_cdf, count_bin_rad, no_key, no_key, no_key, False, np.ones(n), clumping, dens_eff_per_sr,
+        match_tol_rad, false_alarm, max_rounds, stable_fit, misfit_p)
+    if status != STATUS_OK:
+        return status, none_ids, q0, cov0, 0, 0, n_hyp, n, np.inf
+    ok, q, rms_f, cov, star_ids = solve_identified(v, nav, nav_hip, index, det, nav_idx, k, sigma_rad)
+    if not ok:
+        return STATUS_PARALLEL, none_ids, q0, cov0, 0, n_req, n_hyp, n, np.inf
+    if rms_f > match_tol_rad:
+        return STATUS_RESIDUAL, none_ids, q0, cov0, 0, n_req, n_hyp, n, np.inf
+    return STATUS_OK, star_ids, q, cov, det.shape[0], n_req, n_hyp, n, rms_f
+
+
+@njit(cache=True)
 def cast_votes(ang, tol, pool, s_ang, kk, a1, b1, first, second, first_mag, second_mag, mag, mag_tol, use_mag,
                n_nav):
     """Geometric-voting table (see :mod:`startracker.identify.voting`).
@@ -977,17 +1185,34 @@ def cast_votes(ang, tol, pool, s_ang, kk, a1, b1, first, second, first_mag, seco
 
 
 @njit(cache=True)
-def frame_tables(v, n_angles, dup_cos, pair_sigma_rad, floor_rad, aberration_scale):
-    """Duplicates, inter-star angles and pair windows of a frame's detections.
+def prepare_detections(xy, intensities, have_intensities, mag_zero_point, width, height, focal_length_mm,
+                       k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles, dup_cos, pair_sigma_rad, floor_rad,
+                       aberration_scale):
+    """A frame's detections ready for identification: order, usable points, unit vectors, angle tables.
+
+    Detections are ordered brightest first (stable) when intensities are given, points off the detector
+    (beyond the outer pixel edges) dropped, the rest turned into camera-frame unit vectors
+    (:func:`startracker.kernels.optics.unproject_pinhole`), a detection closer than the duplicate radius
+    to a brighter one dropped, and the inter-star angles and pair windows of the first ``n_angles``
+    kept detections tabulated.
 
     Parameters
     ----------
-    v : ndarray, shape (n, 3)
-        Camera-frame unit vectors, brightest first.
+    xy : ndarray, shape (K, 2)
+        Detections (column, row), px.
+    intensities : ndarray, shape (K,)
+        Positive intensities (read only when ``have_intensities``).
+    have_intensities : bool
+    mag_zero_point : float
+        Measured magnitude ``mag_zero_point − 2.5 log10(intensity)``.
+    width, height : int
+        Detector size, px.
+    focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy : float
+        Camera model (see :func:`startracker.kernels.optics.unproject_pinhole`).
     n_angles : int
-        Tabulate the first ``m = min(n_kept, n_angles)`` kept detections.
+        Tabulate the first ``m = min(n, n_angles)`` kept detections.
     dup_cos : float
-        Cosine of the duplicate radius: a detection closer than that to an earlier one is dropped.
+        Cosine of the duplicate radius.
     pair_sigma_rad : float
         ``pair_sigmas · √2 · σ`` of an inter-star angle, rad.
     floor_rad : float
@@ -997,37 +1222,70 @@ def frame_tables(v, n_angles, dup_cos, pair_sigma_rad, floor_rad, aberration_sca
 
     Returns
     -------
-    keep : ndarray of bool, shape (n,)
+    index : ndarray of int64, shape (n,)
+        Row in ``xy`` of each kept detection, brightest first.
+    v : ndarray, shape (n, 3)
+        Camera-frame unit vectors.
+    mag : ndarray, shape (n,)
+        Measured magnitudes (zeros without intensities).
     ang : ndarray, shape (m, m)
         Angles between kept detections, rad.
     tol : ndarray, shape (m, m)
         Window half-widths, rad.
     """
-    n = v.shape[0]
-    keep = np.ones(n, dtype=np.bool_)
-    for j in range(1, n):
+    k = xy.shape[0]
+    if have_intensities:
+        order = np.argsort(-intensities, kind="mergesort")
+    else:
+        order = np.arange(k)
+    on = np.empty(k, dtype=np.int64)
+    n_on = 0
+    for t in range(k):
+        r = order[t]
+        x, y = xy[r, 0], xy[r, 1]
+        if x >= -0.5 and x <= width - 0.5 and y >= -0.5 and y <= height - 0.5:
+            on[n_on] = r
+            n_on += 1
+    pts = np.empty((n_on, 2))
+    for t in range(n_on):
+        pts[t, 0] = xy[on[t], 0]
+        pts[t, 1] = xy[on[t], 1]
+    u = unproject_pinhole(pts, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy)
+    keep = np.ones(n_on, dtype=np.bool_)
+    n = n_on
+    for j in range(1, n_on):
         for i in range(j):
-            if v[i, 0] * v[j, 0] + v[i, 1] * v[j, 1] + v[i, 2] * v[j, 2] > dup_cos:
+            if u[i, 0] * u[j, 0] + u[i, 1] * u[j, 1] + u[i, 2] * u[j, 2] > dup_cos:
                 keep[j] = False
+                n -= 1
                 break
-    idx = np.flatnonzero(keep)
-    m = min(len(idx), n_angles)
+    index = np.empty(n, dtype=np.int64)
+    v = np.empty((n, 3))
+    mag = np.zeros(n)
+    c = 0
+    for t in range(n_on):
+        if keep[t]:
+            index[c] = on[t]
+            v[c, 0], v[c, 1], v[c, 2] = u[t, 0], u[t, 1], u[t, 2]
+            if have_intensities:
+                mag[c] = mag_zero_point - 2.5 * math.log10(intensities[on[t]])
+            c += 1
+    m = min(n, n_angles)
     ang = np.zeros((m, m))
     tol = np.empty((m, m))
     base = math.sqrt(pair_sigma_rad * pair_sigma_rad + floor_rad * floor_rad)
     for a in range(m):
         tol[a, a] = base
         for b in range(a + 1, m):
-            p, q = idx[a], idx[b]
             # atan2 of |p × q| and p · q: accurate at small angles too
-            cx = v[p, 1] * v[q, 2] - v[p, 2] * v[q, 1]
-            cy = v[p, 2] * v[q, 0] - v[p, 0] * v[q, 2]
-            cz = v[p, 0] * v[q, 1] - v[p, 1] * v[q, 0]
-            dot = v[p, 0] * v[q, 0] + v[p, 1] * v[q, 1] + v[p, 2] * v[q, 2]
-            t = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), dot)
-            ang[a, b] = t
-            ang[b, a] = t
-            w = base + aberration_scale * t
+            cx = v[a, 1] * v[b, 2] - v[a, 2] * v[b, 1]
+            cy = v[a, 2] * v[b, 0] - v[a, 0] * v[b, 2]
+            cz = v[a, 0] * v[b, 1] - v[a, 1] * v[b, 0]
+            dot = v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]
+            th = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), dot)
+            ang[a, b] = th
+            ang[b, a] = th
+            w = base + aberration_scale * th
             tol[a, b] = w
             tol[b, a] = w
-    return keep, ang, tol
+    return index, v, mag, ang, tol

@@ -1,14 +1,17 @@
 """Camera kernels: the pinhole projection with first-order radial distortion, float64 arrays, no checks.
 
-The checked API is :meth:`startracker.optics.Camera.project` (conventions: camera +z is the boresight, pixel
+The checked API is :meth:`startracker.optics.Camera.project` / :meth:`~startracker.optics.Camera.unproject` (conventions: camera +z is the boresight, pixel
 ``(0, 0)`` the centre of the top-left pixel, distortion as in paper 004 eq. 3).
 """
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
-__all__ = ["project_pinhole"]
+import numpy as np
+from numba import njit
+
+__all__ = ["project_pinhole", "unproject_pinhole"]
 
 
 def project_pinhole(v: np.ndarray, focal_length_mm: float, k1_per_mm2: float, pixel_size_mm: float,
@@ -40,3 +43,48 @@ def project_pinhole(v: np.ndarray, focal_length_mm: float, k1_per_mm2: float, pi
     if k1_per_mm2 != 0.0:  # k1 = 0: the factor is exactly 1
         xy = xy * (1.0 + k1_per_mm2 * np.add.reduce(xy**2, axis=-1, keepdims=True))
     return xy / pixel_size_mm + principal_point_px, in_front
+
+
+@njit(cache=True)
+def unproject_pinhole(xy, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy):
+    """Distorted pixel coordinates to unit camera-frame directions (inverse of :func:`project_pinhole`).
+
+    The radial distortion ``r_d = r (1 + k1 r²)`` is inverted per point by Newton's method from
+    ``r = r_d`` (to 1e-15 relative, at most 20 steps), then ``v = (x_mm, y_mm, f_mm) / |·|``.
+
+    Parameters
+    ----------
+    xy : ndarray, shape (K, 2)
+        (column, row), px.
+    focal_length_mm, k1_per_mm2, pixel_size_mm : float
+        Focal length (mm), first-order radial distortion coefficient (1/mm²), pixel pitch (mm).
+    ppx, ppy : float
+        Principal point (column, row), px.
+
+    Returns
+    -------
+    v : ndarray, shape (K, 3)
+        Unit vectors, camera frame (Z > 0).
+    """
+    n = xy.shape[0]
+    out = np.empty((n, 3))
+    f2 = focal_length_mm * focal_length_mm
+    for j in range(n):
+        dx = (xy[j, 0] - ppx) * pixel_size_mm
+        dy = (xy[j, 1] - ppy) * pixel_size_mm
+        if k1_per_mm2 != 0.0:
+            rd = math.sqrt(dx * dx + dy * dy)
+            rr = rd
+            for _ in range(20):
+                step = (rr * (1.0 + k1_per_mm2 * rr * rr) - rd) / (1.0 + 3.0 * k1_per_mm2 * rr * rr)
+                rr = rr - step
+                if abs(step) <= 1e-15 * max(rd, 1e-30):
+                    break
+            if rd > 0.0:
+                dx = dx * (rr / rd)
+                dy = dy * (rr / rd)
+        nv = math.sqrt(dx * dx + dy * dy + f2)
+        out[j, 0] = dx / nv
+        out[j, 1] = dy / nv
+        out[j, 2] = focal_length_mm / nv
+    return out

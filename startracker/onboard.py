@@ -40,6 +40,7 @@ from startracker.filter import AttitudeEKF
 from startracker.head import HEAD_CAMERAS, make_head
 from startracker.imu import GYRO_GRADES, Gyro, gyro_preset
 from startracker.kernels import rotations as rk
+from startracker.kernels import sensor as sensor_kernels
 from startracker.multifov import MultiFovSensor
 from startracker.rotations import quat_conjugate, quat_integrate, quat_interpolate, quat_rotate
 from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
@@ -197,24 +198,32 @@ def count_wrong_samples(samples, time_errors_s, times_s, q_body_to_icrs) -> int:
     """
     if not samples:
         return 0
-    t = np.array([s.t_s for s in samples]) - time_errors_s
-    inside = (t >= times_s[0]) & (t <= times_s[-1])
-    if not inside.any():
-        return 0
-    q_true = rk.quat_interpolate(times_s, q_body_to_icrs, t[inside])  # the caller's own float64 truth history
-    q_meas = np.array([s.q_body_to_icrs for s in samples])[inside]
+    t, q, cov = _sample_arrays(samples)
+    return _count_wrong(t - time_errors_s, q, cov, times_s, q_body_to_icrs)
+
+
+def _sample_arrays(samples):
+    """Times (n,), attitudes (n, 4) and covariances (n, 3, 3) of a non-empty list of samples."""
+    return (np.array([s.t_s for s in samples]), np.array([s.q_body_to_icrs for s in samples]),
+            np.array([s.covariance_rad2 for s in samples]))
+
+
+def _count_wrong(t_true, q_meas, cov, times_s, q_body_to_icrs) -> int:
+    """:func:`count_wrong_samples` on the samples' arrays, ``t_true`` their true exposure instants."""
+    inside = (t_true >= times_s[0]) & (t_true <= times_s[-1])
+    if not inside.all():
+        if not inside.any():
+            return 0
+        t_true, q_meas, cov = t_true[inside], q_meas[inside], cov[inside]
+    q_true = rk.quat_interpolate(times_s, q_body_to_icrs, t_true)  # the caller's own float64 truth history
     err = rk.quat_angle_between(q_true, q_meas)
-    cov = np.array([s.covariance_rad2 for s in samples])[inside]
-    floor = WRONG_FLOOR_RAD
-    # σ² = λ_max lies in [trace/3, trace]: most samples are decided by these bounds without an eigensolver
-    tr = np.trace(cov, axis1=1, axis2=2)
-    sure_wrong = err > np.maximum(5 * np.sqrt(tr * (1 + 1e-9)), floor)
-    sure_right = err <= np.maximum(5 * np.sqrt(tr / 3 * (1 - 1e-9)), floor)
-    undecided = np.flatnonzero(~(sure_wrong | sure_right))
+    flags = sensor_kernels.wrong_sample_flags(err, cov, WRONG_FLOOR_RAD)
+    n_wrong = int(np.count_nonzero(flags == 1))
+    undecided = np.flatnonzero(flags == 2)
     if len(undecided):
         sig = np.sqrt(np.max(np.linalg.eigvalsh(cov[undecided]), axis=-1))
-        sure_wrong[undecided] = err[undecided] > np.maximum(5 * sig, floor)
-    return int(np.sum(sure_wrong))
+        n_wrong += int(np.count_nonzero(err[undecided] > np.maximum(5 * sig, WRONG_FLOOR_RAD)))
+    return n_wrong
 
 
 def _empty_stats() -> dict:
@@ -288,6 +297,10 @@ class StarTrackerUnit:
         self.tracker = self.trackers[0]
         self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
         self.gyro_period_s = 1.0 / config.gyro_rate_hz
+        self._single_plan = ExposurePlan(n_exposures=1, exposure_s=config.single_exposure_s,
+                                         frame_period_s=config.frame_period_s,
+                                         start_offset_s=0.5 * (config.frame_period_s - config.single_exposure_s))
+        self._multi_plans: dict[int, ExposurePlan] = {}
         self.gyro: Gyro | None = None
         self.faults = None
         self._clear()
@@ -391,12 +404,16 @@ class StarTrackerUnit:
             lat.append(self.last_stats["matching_latency_ms"])
             stats["n_stars"] = self.last_stats["n_stars"]
             stats["exposures_per_frame"] = self.last_stats["exposures_per_frame"]
-        stats["matching_latency_ms"] = float(np.mean(lat)) if lat else 0.0
+        stats["matching_latency_ms"] = sum(lat) / len(lat) if lat else 0.0
         stats["filter_restarts"] = self._filter_resets
         stats["n_attitude_samples"] = len(samples)
         stats["update_rate_hz"] = len(samples) / duration_s
         stats["lost_lock_events"] = self._lost_events
-        wrong = count_wrong_samples(samples, np.array(offsets), times, quats)
+        if samples:  # the samples' arrays, built once for the wrong-sample count and the filter
+            arrays = _sample_arrays(samples)
+            wrong = _count_wrong(arrays[0] - np.array(offsets), arrays[1], arrays[2], times, quats)
+        else:
+            arrays, wrong = None, 0
         self._n_wrong += wrong
         stats["n_wrong_samples"] = wrong
         stats["faults_active"] = self.faults.active_kinds(t0, times[-1]) if self.faults else []
@@ -406,23 +423,28 @@ class StarTrackerUnit:
             if samples:
                 first = samples[0]
                 self._start_filter(first, first.t_s)
-                rest = [s for s in samples[1:]]
-                self._filter_span(times, omega_meas, rest, start_index=int(np.searchsorted(times, first.t_s, side="right")))
+                rest = tuple(a[1:] for a in arrays)
+                self._filter_span(times, omega_meas, samples[1:], rest,
+                                  start_index=int(np.searchsorted(times, first.t_s, side="right")))
         else:
-            self._filter_span(times, omega_meas, samples)
+            self._filter_span(times, omega_meas, samples, arrays)
         self.last_stats = stats
 
-    def _filter_span(self, times, omega_meas, samples, start_index: int = 1) -> None:
-        """Replay gyro intervals ``(times[k-1], times[k]]`` and the attitude samples in time order."""
+    def _filter_span(self, times, omega_meas, samples, arrays, start_index: int = 1) -> None:
+        """Replay gyro intervals ``(times[k-1], times[k]]`` and the attitude samples in time order.
+
+        ``arrays`` are the samples' times, attitudes and covariances (:func:`_sample_arrays`), or None without
+        samples."""
         tg = times[start_index:]
         wg = omega_meas[start_index - 1 :]
         if len(tg) == 0:
             return
         if samples:
-            samples = sorted(samples, key=lambda s: s.t_s)
-            qm = np.array([s.q_body_to_icrs for s in samples])
-            tm = np.array([s.t_s for s in samples])
-            cm = np.array([s.covariance_rad2 for s in samples])
+            tm, qm, cm = arrays
+            if len(tm) > 1 and np.any(tm[1:] < tm[:-1]):  # several heads: merge into time order (stable, as sorted)
+                order = np.argsort(tm, kind="stable")
+                tm, qm, cm = tm[order], qm[order], cm[order]
+                samples = [samples[i] for i in order]
             keep = tm >= self.ekf.t_s - 1e-12
             qm, tm, cm = qm[keep], np.maximum(tm[keep], self.ekf.t_s), cm[keep]
         else:
@@ -465,8 +487,7 @@ class StarTrackerUnit:
         requested = tracker.requested_n_exposures  # a computed property: evaluate it once
         if cfg.exposure_mode == "single" or requested == 1:
             # lost-in-space needs one sharp spot per star: a single exposure centred in the frame
-            return ExposurePlan(n_exposures=1, exposure_s=cfg.single_exposure_s, frame_period_s=cfg.frame_period_s,
-                                start_offset_s=0.5 * (cfg.frame_period_s - cfg.single_exposure_s))
+            return self._single_plan
         if cfg.n_exposures == "adaptive":
             # N is what the tracker can separate given its prediction (requested_n_exposures) and what the detector
             # can separate given the smear (the no-overlap rule of the exposure plan): the smaller of the two
@@ -475,7 +496,11 @@ class StarTrackerUnit:
             n = max(1, min(n_img, requested))
         else:
             n = int(cfg.n_exposures)
-        return ExposurePlan(n_exposures=n, exposure_s=self.exposure_s, frame_period_s=cfg.frame_period_s)
+        plan = self._multi_plans.get(n)
+        if plan is None:  # plans are frozen: each N is built and validated once
+            plan = self._multi_plans[n] = ExposurePlan(n_exposures=n, exposure_s=self.exposure_s,
+                                                       frame_period_s=cfg.frame_period_s)
+        return plan
 
     def _inertial_prior(self, tracker, t_frame: float):
         """The EKF attitude propagated to the frame, offered to a tracker that is not tracking (inertial aiding),

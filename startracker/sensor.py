@@ -45,6 +45,7 @@ motion state and the attempt bookkeeping, which a split would have to pass betwe
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 
@@ -68,10 +69,18 @@ from startracker.track import (
     prediction_sigma_px,
 )
 from startracker.kernels import rotations as rk
+from startracker.kernels import sensor as sensor_kernels
+from startracker.kernels import track as track_kernels
 
 __all__ = ["StarTracker", "FrameResult", "AttitudeSample", "MotionState", "MODES"]
 
 MODES = ("lost", "acquire", "track")
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """``a`` made read-only (a constant shared by motion states)."""
+    a.setflags(write=False)
+    return a
 
 
 @dataclass(frozen=True)
@@ -326,6 +335,14 @@ class StarTracker:
         self.coast_max_s = check_positive(coast_max_s, "coast_max_s", allow_zero=True)
         self.prior_sigma_rad = check_positive(prior_sigma_rad, "prior_sigma_rad")
         self.identify_options = {"sigma_px": self.centroid_sigma_px, **(identify_options or {})}
+        # Per-frame constants, built once (read-only: the motion state shares them)
+        self._eye3 = _frozen(np.eye(3))
+        self._var_gyro = _frozen(self.gyro_sigma_rad_s**2 * np.eye(3))
+        self._var_proc = _frozen(self.accel_sigma_rad_s2**2 * np.eye(3))
+        self._r_cam_to_body = camera.r_cam_to_body
+        self._r_body_to_cam = _frozen(np.ascontiguousarray(camera.r_cam_to_body.T))
+        self._f_px = float(camera.focal_length_px)
+        self._rho_max_px = math.hypot(*camera.resolution) / 2.0
         self.reset()
 
     # ------------------------------------------------------------------ public state
@@ -366,14 +383,17 @@ class StarTracker:
         st = self._state
         if self._mode != "track" or st is None or not st.alpha_known:
             return 1
-        n_rate = 1 + int(np.round(np.degrees(np.linalg.norm(st.omega_body)) / self.rate_per_exposure_deg_s))
+        w = st.omega_body
+        n_rate = 1 + round(math.degrees(math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])) / self.rate_per_exposure_deg_s)
         period = self._frame_interval_s
         # The next frame's last exposure: its centre is one interval after the last frame's centre, and its
         # exposures spread over at most a frame period.
         horizon = max(period, self._last_exp_centre + 1.5 * period - st.t_s)
-        sigma = prediction_sigma_px(self.camera, st.cov_theta_rad2, horizon, st.cov_omega, self._cov_alpha_total(st), validate=False)
-        w_cam = self.camera.r_cam_to_body.T @ st.omega_body
-        travel_px = float(np.hypot(w_cam[0], w_cam[1])) * period * self.camera.focal_length_px
+        # the motion state holds (3, 3) float64 covariances: the kernel of prediction_sigma_px directly
+        sigma = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, st.cov_omega,
+                                                  self._cov_alpha_total(st), float(horizon), self._f_px, self._rho_max_px)
+        w_cam = self._r_body_to_cam @ w
+        travel_px = math.hypot(w_cam[0], w_cam[1]) * period * self._f_px
         n_sep = n_rate if self.shift_k_sigma == 0 or sigma == 0 else int(travel_px / (2.0 * self.shift_k_sigma * sigma))
         return min(max(min(n_rate, n_sep), 1), self.max_exposures)  # np.clip on Python ints
 
@@ -448,10 +468,12 @@ class StarTracker:
             dt_frame = t_frame - self._last_frame_time
             self._frame_interval_s = dt_frame
         self._last_frame_time = t_frame
-        self._last_gyro = None if gyro is None else (t_frame, gyro, self.gyro_sigma_rad_s**2 * np.eye(3))
+        self._last_gyro = None if gyro is None else (t_frame, gyro, self._var_gyro)
         self._last_exp_centre = float(0.5 * (t_exp[0] + t_exp[-1]))
-        rate = len(result.samples) / dt_frame
-        return replace(result, update_rate_hz=float(rate), mode=self._mode)
+        r = result
+        return FrameResult(self._mode, r.samples, r.n_matched, r.n_detections, r.matching_latency_ms,
+                           len(r.samples) / dt_frame, r.status, r.n_exposures, r.n_predicted, r.radius_px,
+                           r.identify_latency_ms, r.residual_arcsec, r.skipped_instants)
 
     # ------------------------------------------------------------------ modes
     def _lost(self, xy, intensity, t_exp, gyro, t_frame, prior) -> FrameResult:
@@ -497,7 +519,7 @@ class StarTracker:
             self._mode, self._candidate = "lost", None
             return self._lost(xy, intensity, t_exp, gyro, t_frame, None)
         if gyro is not None:
-            var_g = self.gyro_sigma_rad_s**2 * np.eye(3)
+            var_g = self._var_gyro
             st = MotionState(cand.t_s, cand.q_body_to_icrs, cand.cov_theta_rad2, gyro, var_g, rate_meas=self._previous_gyro(t_frame))
             att = self._track(xy, t_exp, st, gyro, t_frame)
             if att.ok:
@@ -537,7 +559,7 @@ class StarTracker:
 
     # ------------------------------------------------------------------ tracking
     def _cov_alpha_total(self, st: MotionState) -> np.ndarray:
-        return st.cov_alpha + self.accel_sigma_rad_s2**2 * np.eye(3)
+        return st.cov_alpha + self._var_proc
 
     def _propagation(self, st: MotionState, gyro, t_frame):
         """Rate at ``st.t_s``, acceleration and their covariances used to propagate ``st``."""
@@ -546,8 +568,8 @@ class StarTracker:
         # Gyro readings at this and the previous frame: the rate in between is their interpolation (the
         # slope is the acceleration), with the gyro's error; the unmodelled acceleration change only
         # enters the propagation.
-        var_g = self.gyro_sigma_rad_s**2 * np.eye(3)
-        var_proc = self.accel_sigma_rad_s2**2 * np.eye(3)
+        var_g = self._var_gyro
+        var_proc = self._var_proc
         lever = st.t_s - t_frame
         prev = st.rate_meas
         if prev is not None and 0 < t_frame - prev[0] <= self.coast_max_s:
@@ -562,14 +584,18 @@ class StarTracker:
     def _track(self, xy, t_exp, st: MotionState, gyro, t_frame, extra_var_alpha: float = 0.0) -> _Attempt:
         t0 = time.perf_counter()
         omega, alpha, cov_w, cov_a = self._propagation(st, gyro, t_frame)
-        cov_a = cov_a + extra_var_alpha * np.eye(3)
-        sig_pred = prediction_sigma_px(self.camera, st.cov_theta_rad2, t_exp - st.t_s, cov_w, cov_a, validate=False)
+        if extra_var_alpha:
+            cov_a = cov_a + extra_var_alpha * self._eye3
+        # the largest propagation time of the frame is at one of its ends (t_exp increases)
+        horizon = max(abs(float(t_exp[0]) - st.t_s), abs(float(t_exp[-1]) - st.t_s))
+        sig_pred = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, cov_w, cov_a, horizon,
+                                                     self._f_px, self._rho_max_px)
         r = prediction_radius_px(self.centroid_sigma_px, sig_pred, self.radius_k_sigma, self.radius_min_px, self.radius_max_px)
         if len(t_exp) > 1:
             # Spots of one star one exposure apart must be well separated against the prediction error,
             # or the whole frame may match one exposure off (3/4 of the exposure plan's margin).
-            w_cam = self.camera.r_cam_to_body.T @ omega
-            spacing_px = float(np.hypot(w_cam[0], w_cam[1]) * np.min(np.diff(t_exp)) * self.camera.focal_length_px)
+            w_cam = self._r_body_to_cam @ omega
+            spacing_px = math.hypot(w_cam[0], w_cam[1]) * float((t_exp[1:] - t_exp[:-1]).min()) * self._f_px
             if spacing_px < 1.5 * self.shift_k_sigma * sig_pred:
                 latency = (time.perf_counter() - t0) * 1e3
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
@@ -586,13 +612,18 @@ class StarTracker:
             return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
         inst = attitudes_per_instant(xy, idx, pred, self.camera, self.catalog, self.centroid_sigma_px,
                                      self.min_stars_per_instant, self.outlier_k_sigma, validate=False)
-        n_matched = int(np.sum(inst.assignment >= 0))
+        n_matched = int(np.count_nonzero(inst.assignment >= 0))
         frac = n_matched / n_pred
-        ok_i = inst.ok
-        rms = float(np.sqrt(np.mean(inst.residual_rms_arcsec[ok_i] ** 2))) if ok_i.any() else float("inf")
-        skipped = tuple(int(i) for i in inst.skipped)
+        sel = np.flatnonzero(inst.ok)
+        n_ok = len(sel)
+        if n_ok:
+            res_ok = inst.residual_rms_arcsec[sel]
+            rms = math.sqrt(float(res_ok @ res_ok) / n_ok)
+        else:
+            rms = float("inf")
+        skipped = tuple(inst.skipped.tolist())
         base = dict(n_matched=n_matched, n_predicted=n_pred, radius_px=r, latency_ms=latency, residual_arcsec=rms, skipped=skipped)
-        if not ok_i.any():
+        if not n_ok:
             return _Attempt(False, f"no exposure instant with {self.min_stars_per_instant} matched stars ({n_matched}/{n_pred} matched)", [], **base)
         if frac < self.min_matched_fraction:
             return _Attempt(False, f"matched {n_matched}/{n_pred} predicted spots ({100 * frac:.0f} % < {100 * self.min_matched_fraction:.0f} %)", [], **base)
@@ -601,36 +632,38 @@ class StarTracker:
         # A frame matched one exposure off leaves the first (prediction lagging) or last (leading) instant
         # without stars while the others are full; a state already off by one exposure agrees with its own
         # prediction, so only this test sees it.
-        n_st = inst.n_stars
-        if len(n_st) >= 2 and min(n_st[0], n_st[-1]) < 0.5 * np.median(n_st):
-            return _Attempt(False, f"first/last instant nearly empty ({n_st[0]}, {n_st[-1]} stars, median "
-                                   f"{np.median(n_st):.0f}): matched one exposure off", [], **base)
-        # Innovation: solved vs predicted attitude at each solved instant.
-        sel = np.flatnonzero(ok_i)
-        delta = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(pred.q_body_to_icrs[sel]), inst.q_body_to_icrs[sel]))
-        s = prediction_covariance(st.cov_theta_rad2, inst.times_s[sel] - st.t_s, cov_w, cov_a, validate=False) + inst.covariance_rad2[sel]
-        nis = float(np.mean(np.einsum("ni,ni->n", delta, np.linalg.solve(s, delta[..., None])[..., 0])))
+        n_st = inst.n_stars.tolist()
+        if len(n_st) >= 2:
+            ordered = sorted(n_st)
+            half = len(ordered) // 2
+            median = ordered[half] if len(ordered) % 2 else 0.5 * (ordered[half - 1] + ordered[half])
+            if min(n_st[0], n_st[-1]) < 0.5 * median:
+                return _Attempt(False, f"first/last instant nearly empty ({n_st[0]}, {n_st[-1]} stars, median "
+                                       f"{median:.0f}): matched one exposure off", [], **base)
+        # Innovation: solved vs predicted attitude at each solved instant (fresh arrays of this frame's solve).
+        t_s = inst.times_s[sel]
+        q_sol = inst.q_body_to_icrs[sel]
+        cov_sol = inst.covariance_rad2[sel]
+        nis = sensor_kernels.innovation_chi2_mean(pred.q_body_to_icrs[sel], q_sol, cov_sol, t_s - st.t_s,
+                                                  st.cov_theta_rad2, cov_w, cov_a)
         if nis > self.innovation_gate:
             return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", [], **base)
-        samples = [
-            AttitudeSample(float(inst.times_s[i]), inst.q_body_to_icrs[i].copy(), inst.covariance_rad2[i].copy(), int(inst.n_stars[i]))
-            for i in sel
-        ]
-        new_state = self._update_state(st, samples, gyro, t_frame)
-        status = f"tracking {len(samples)}/{len(t_exp)} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
+        # the rows of the frame's own copies: no sample shares memory with another or with the tracker
+        samples = list(map(AttitudeSample, t_s.tolist(), q_sol, cov_sol, inst.n_stars[sel].tolist()))
+        new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)
+        status = f"tracking {n_ok}/{len(t_exp)} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
         if skipped:
             status += f", skipped instants {list(skipped)}"
         return _Attempt(True, status, samples, state=new_state, **base)
 
-    def _update_state(self, st: MotionState, samples, gyro, t_frame) -> MotionState:
-        """New motion state from a tracked frame's samples (see the module docstring)."""
-        t = np.array([s.t_s for s in samples])
-        q = np.array([s.q_body_to_icrs for s in samples])
-        covs = np.array([s.covariance_rad2 for s in samples])
-        t_ref, q_ref, cov_ref = float(t[-1]), q[-1], covs[-1]
+    def _update_state(self, st: MotionState, t, q, covs, gyro, t_frame) -> MotionState:
+        """New motion state from a tracked frame's solved instants ``t`` (n,), ``q`` (n, 4), ``covs`` (n, 3, 3)
+        (see the module docstring)."""
+        # copies: the state must not share memory with the samples handed to the caller
+        t_ref, q_ref, cov_ref = float(t[-1]), q[-1].copy(), covs[-1].copy()
         # A rate measurement (time, rate, covariance).
         if gyro is not None:
-            meas = (t_frame, gyro, self.gyro_sigma_rad_s**2 * np.eye(3))
+            meas = (t_frame, gyro, self._var_gyro)
         elif len(t) >= 3:
             # Least-squares line θ(τ) = c + ω τ through the rotation vectors relative to the last instant:
             # its slope is the rate at the mean time.
@@ -663,7 +696,7 @@ class StarTracker:
         else:
             alpha, cov_alpha = np.zeros(3), np.zeros((3, 3))
         lever = t_ref - t_m
-        cov_w = cov_m + (cov_alpha + self.accel_sigma_rad_s2**2 * np.eye(3)) * lever**2
+        cov_w = cov_m + (cov_alpha + self._var_proc) * lever**2
         return MotionState(t_ref, q_ref, cov_ref, w_m + alpha * lever, cov_w, alpha, cov_alpha, meas, alpha_known)
 
     # ------------------------------------------------------------------ helpers

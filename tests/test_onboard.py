@@ -89,3 +89,28 @@ def test_state_exists_after_init():
         assert unit.render_last_frame() is None and unit.ekf is None
         with pytest.raises(RuntimeError, match="reset"):
             unit.observe(np.array([0.0, 0.01]), np.array([[1.0, 0, 0, 0]] * 2), np.random.default_rng(0))
+
+
+def test_count_wrong_samples_judges_only_samples_inside_the_truth_history():
+    """Samples stamped outside the history are not judged; those inside are, against the slerped truth at their
+    true instant (stamp minus its timestamp error)."""
+    from startracker.onboard import count_wrong_samples
+    from startracker.rotations import quat_from_rotvec, quat_integrate, quat_interpolate, quat_multiply
+    from startracker.sensor import AttitudeSample
+
+    times = np.linspace(1.0, 1.1, 11)
+    quats = quat_integrate(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.1, 0.2, -0.3]), times - 1.0)
+    cov = (np.radians(1 / 3600) ** 2) * np.eye(3)  # 1″: wrong beyond max(5″, 20″) = 20″
+    off = quat_from_rotvec(np.radians([0.0, 0.0, 60 / 3600]))  # 60″ off: wrong wherever it is judged
+    bad = [AttitudeSample(t, quat_multiply(quat_interpolate(times, quats, min(max(t, 1.0), 1.1)), off), cov, 5)
+           for t in (0.95, 1.02, 1.05, 1.2)]
+    good = AttitudeSample(1.07, quat_interpolate(times, quats, 1.07), cov, 5)
+    assert count_wrong_samples(bad + [good], np.zeros(5), times, quats) == 2  # 0.95 and 1.2 s are outside
+    assert count_wrong_samples([bad[0], bad[3]], np.zeros(2), times, quats) == 0
+    assert count_wrong_samples([], np.zeros(0), times, quats) == 0
+    # a timestamp error moves the judged instant: the sample stamped 1.2 s was taken at 1.08 s (inside, and
+    # 60″ off the truth at 1.1 s which is not its truth at 1.08 s either)
+    assert count_wrong_samples([bad[3]], np.array([0.12]), times, quats) == 1
+    # the good sample, stamped 0.03 s late, is judged against the truth at 1.04 s: 0.03 s × 0.37 rad/s ≈ 2300″ off
+    assert count_wrong_samples([good], np.array([0.03]), times, quats) == 1
+    assert count_wrong_samples([good], np.array([0.0]), times, quats) == 0

@@ -259,3 +259,58 @@ def test_multi_exposure_frame_without_a_usable_rate_is_refused(cam, nav):
     fr, times, t_frame = frame(cam, nav, slew, 2, 16, rng)
     res = st.process_frame(fr.xy, fr.intensity, times, t_frame, q_body_prior=slew.q(t_frame))
     assert res.mode == "lost" and res.samples == [] and "too uncertain" in res.status
+
+
+def test_innovation_chi2_matches_a_scipy_and_linalg_reference():
+    """The compiled innovation test: mean of δᵀ S⁻¹ δ with δ the rotation from predicted to solved attitude and
+    S = P_θ + P_ω τ² + P_α τ⁴/4 + C, against scipy's rotation vectors and numpy's solver."""
+    from scipy.spatial.transform import Rotation
+
+    from startracker.kernels.sensor import innovation_chi2_mean
+
+    rng = np.random.default_rng(3)
+
+    def spd(scale):
+        a = rng.normal(size=(3, 3)) * scale
+        return a @ a.T + scale**2 * np.eye(3)
+
+    n = 7
+    q_pred = quat_random(rng, n)
+    delta_true = rng.normal(size=(n, 3)) * 1e-4
+    delta_true[0] *= 1e4  # one large rotation (~1 rad): the series branch and the sin branch
+    q_sol = quat_multiply(q_pred, quat_from_rotvec(delta_true)) * rng.choice([-1.0, 1.0], size=(n, 1))
+    cov_sol = np.array([spd(1e-5) for _ in range(n)])
+    tau = rng.uniform(-0.05, 0.1, n)
+    p_th, p_w, p_a = spd(1e-5), spd(1e-4), spd(1e-2)
+    got = innovation_chi2_mean(q_pred, q_sol, cov_sol, tau, p_th, p_w, p_a)
+
+    # reference: scipy rotations (scalar-last), the shorter rotation, numpy's LU solve
+    r_pred = Rotation.from_quat(q_pred[:, [1, 2, 3, 0]])
+    r_sol = Rotation.from_quat(q_sol[:, [1, 2, 3, 0]])
+    delta = (r_pred.inv() * r_sol).as_rotvec()
+    np.testing.assert_allclose(delta, delta_true, rtol=1e-9, atol=1e-12)
+    s = p_th + p_w * tau[:, None, None] ** 2 + p_a * tau[:, None, None] ** 4 / 4 + cov_sol
+    want = np.mean([d @ np.linalg.solve(si, d) for d, si in zip(delta, s)])
+    assert got == pytest.approx(want, rel=1e-10)
+    assert innovation_chi2_mean(q_pred[:0], q_sol[:0], cov_sol[:0], tau[:0], p_th, p_w, p_a) == 0.0
+
+
+def test_samples_do_not_share_memory_with_the_tracker_state(cam, nav):
+    """A caller editing a returned sample in place must not move the tracker's motion state."""
+    rng = np.random.default_rng(8)
+    slew = Slew(rng, 5.0)
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX)
+    log = run(st, cam, nav, slew, range(4), rng)
+    res = log[-1][3]
+    assert res.mode == "track" and res.samples
+    q_state = st.state.q_body_to_icrs.copy()
+    cov_state = st.state.cov_theta_rad2.copy()
+    last = res.samples[-1]
+    assert last.t_s == st.state.t_s  # the state is the last solved instant ...
+    np.testing.assert_array_equal(last.q_body_to_icrs, q_state)
+    last.q_body_to_icrs[:] = 0.0  # ... but not the same memory
+    last.covariance_rad2[:] = 0.0
+    np.testing.assert_array_equal(st.state.q_body_to_icrs, q_state)
+    np.testing.assert_array_equal(st.state.cov_theta_rad2, cov_state)
+    if len(res.samples) > 1:
+        assert np.all(res.samples[-2].q_body_to_icrs != 0.0)

@@ -210,6 +210,13 @@ class _ChannelDetections:
     noise_dn: float
 
 
+def _unpaired(n: int, paired: np.ndarray) -> np.ndarray:
+    """Increasing indices in ``range(n)`` that ``paired`` (−1: none) does not hold."""
+    free = np.ones(n, dtype=bool)
+    free[paired[paired >= 0]] = False
+    return np.flatnonzero(free)
+
+
 def _fuse(cs, registration: ColorRegistration, match_radius_px: float, min_channels: int,
           gain_e_per_dn: float) -> FusedDetections:
     """:func:`fuse_channel_centroids` on checked channel detections."""
@@ -229,8 +236,8 @@ def _fuse(cs, registration: ColorRegistration, match_radius_px: float, min_chann
     idx[gi, r] = ri
     gi, bi = _mutual_nearest(xy[g], xy[b], match_radius_px)
     idx[gi, b] = bi
-    free_r = np.setdiff1d(np.arange(len(xy[r])), idx[:, r])
-    free_b = np.setdiff1d(np.arange(len(xy[b])), idx[:, b])
+    free_r = _unpaired(len(xy[r]), idx[:, r])
+    free_b = _unpaired(len(xy[b]), idx[:, b])
     ri, bi = _mutual_nearest(xy[r][free_r], xy[b][free_b], match_radius_px)
     rb = np.full((len(ri), 3), -1, dtype=np.int64)
     rb[:, r], rb[:, b] = free_r[ri], free_b[bi]

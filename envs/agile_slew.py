@@ -302,24 +302,32 @@ class AgileSlewEnv(gym.Env):
         a = np.asarray(action, dtype=np.float64)
         if a.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError("action contains NaN or inf")
-        a = np.clip(a, -1.0, 1.0)
+        a = np.minimum(np.maximum(a, -1.0), 1.0)  # finite: the same as np.clip, without its dispatch
         self.spacecraft.apply_wheel_torque(a * self.spacecraft.wheel_max_torque_Nm)
         # the env steps the physics and records the truth; the avionics observe it
         dt_gyro = self.avionics.gyro_period_s
         t0, q0 = self.spacecraft.time_s, self.spacecraft.q_body_to_icrs
         t_rec, q_rec = self.spacecraft.step_recording(dt_gyro, int(round(self.control_period_s / dt_gyro)))
-        self.avionics.observe(np.concatenate([[t0], t_rec]), np.concatenate([q0[None, :], q_rec]), self.np_random)
+        n_rec = len(t_rec)
+        t_obs = np.empty(n_rec + 1)
+        t_obs[0] = t0
+        t_obs[1:] = t_rec
+        q_obs = np.empty((n_rec + 1, 4))
+        q_obs[0] = q0
+        q_obs[1:] = q_rec
+        self.avionics.observe(t_obs, q_obs, self.np_random)
 
         q_true = self.spacecraft.q_body_to_icrs
         err = float(rk.quat_angle_between(q_true, self._q_target))  # quat_angle_between on own float64 state
-        rate = float(np.linalg.norm(self.spacecraft.omega_body))
+        rate = math.sqrt(sum(w * w for w in self.spacecraft.omega_body.tolist()))
         dt = self.control_period_s
         settled_now = err <= self.settle_tolerance_rad and rate <= self.settle_rate_rad_s
         self._settled_s = self._settled_s + dt if settled_now else 0.0
         r_point = -self.w_pointing * err * dt
-        r_effort = -self.w_effort * float(np.mean(a**2)) * dt
+        # mean of the squared commands, summed left to right as numpy does for a few elements
+        r_effort = -self.w_effort * (sum(x * x for x in a.tolist()) / len(a)) * dt
         r_settle = self.w_settle * dt if settled_now else 0.0
         reward = r_point + r_effort + r_settle
         terminated = self.task == "slew" and self._settled_s >= self.settle_hold_s - 1e-9

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import gymnasium as gym
 from gymnasium import spaces
@@ -300,29 +302,40 @@ class AgileSlewEnv(gym.Env):
         a = np.asarray(action, dtype=np.float64)
         if a.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError("action contains NaN or inf")
-        a = np.clip(a, -1.0, 1.0)
+        a = np.minimum(np.maximum(a, -1.0), 1.0)  # finite: the same as np.clip, without its dispatch
         self.spacecraft.apply_wheel_torque(a * self.spacecraft.wheel_max_torque_Nm)
         # the env steps the physics and records the truth; the avionics observe it
         dt_gyro = self.avionics.gyro_period_s
         t0, q0 = self.spacecraft.time_s, self.spacecraft.q_body_to_icrs
         t_rec, q_rec = self.spacecraft.step_recording(dt_gyro, int(round(self.control_period_s / dt_gyro)))
-        self.avionics.observe(np.concatenate([[t0], t_rec]), np.concatenate([q0[None, :], q_rec]), self.np_random)
+        n_rec = len(t_rec)
+        t_obs = np.empty(n_rec + 1)
+        t_obs[0] = t0
+        t_obs[1:] = t_rec
+        q_obs = np.empty((n_rec + 1, 4))
+        q_obs[0] = q0
+        q_obs[1:] = q_rec
+        self.avionics.observe(t_obs, q_obs, self.np_random)
 
         q_true = self.spacecraft.q_body_to_icrs
         err = float(rk.quat_angle_between(q_true, self._q_target))  # quat_angle_between on own float64 state
-        rate = float(np.linalg.norm(self.spacecraft.omega_body))
+        rate = math.sqrt(sum(w * w for w in self.spacecraft.omega_body.tolist()))
         dt = self.control_period_s
         settled_now = err <= self.settle_tolerance_rad and rate <= self.settle_rate_rad_s
         self._settled_s = self._settled_s + dt if settled_now else 0.0
         r_point = -self.w_pointing * err * dt
-        r_effort = -self.w_effort * float(np.mean(a**2)) * dt
+        # mean of the squared commands, summed left to right as numpy does for a few elements
+        r_effort = -self.w_effort * (sum(x * x for x in a.tolist()) / len(a)) * dt
         r_settle = self.w_settle * dt if settled_now else 0.0
         reward = r_point + r_effort + r_settle
         terminated = self.task == "slew" and self._settled_s >= self.settle_hold_s - 1e-9
         truncated = self.spacecraft.time_s >= self.max_episode_s - 1e-9
-        return self._observation(), float(reward), bool(terminated), bool(truncated), self._info((r_point, r_effort, r_settle))
+        est = self.avionics.estimate()  # one fresh estimate for the observation and the info
+        obs = self._observation(est)
+        return obs, float(reward), bool(terminated), bool(truncated), self._info((r_point, r_effort, r_settle), est,
+                                                                                   q_true, err)
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -330,35 +343,47 @@ class AgileSlewEnv(gym.Env):
         return self.avionics.render_last_frame()
 
     # ------------------------------------------------------------------ internals
-    def _observation(self) -> np.ndarray:
-        est = self.avionics.estimate()
-        q_err = rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), self._q_target)
-        e = rk.quat_to_rotvec(q_err)
+    def _observation(self, est=None) -> np.ndarray:
+        if est is None:
+            est = self.avionics.estimate()
+        # error rotation vector (3), rate (3), wheel momentum fractions (W), tracker mode one-hot (3), σ (1);
+        # filled in place, each float64 value rounded to float32 once
+        wheels = self.spacecraft.wheel_momentum_fraction
+        n_w = len(wheels)
+        obs = np.empty(10 + n_w, dtype=np.float32)
+        obs[0:3] = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), self._q_target))
         w_max = self.avionics.gyro_max_rate_rad_s
-        mode = np.zeros(3)
-        mode[TRACKER_MODES.index(self.avionics.tracker_mode)] = 1.0
-        obs = np.concatenate(
-            [
-                e,
-                np.clip(est.omega_body, -w_max, w_max),
-                np.clip(self.spacecraft.wheel_momentum_fraction, -1.0, 1.0),
-                mode,
-                [min(est.attitude_sigma_rad, np.pi)],
-            ]
-        )
-        return obs.astype(np.float32)
+        obs[3:6] = np.clip(est.omega_body, -w_max, w_max)
+        obs[6:6 + n_w] = np.clip(wheels, -1.0, 1.0)
+        obs[6 + n_w:9 + n_w] = 0.0
+        obs[6 + n_w + TRACKER_MODES.index(self.avionics.tracker_mode)] = 1.0
+        obs[9 + n_w] = min(est.attitude_sigma_rad, np.pi)
+        return obs
 
     @staticmethod
     def _nees(q_true, est) -> float | None:
         """Normalised estimation error squared of the EKF attitude (3 dof; mean 3 when consistent), None before a fix."""
-        if est.attitude_cov_rad2 is None:
+        p = est.attitude_cov_rad2
+        if p is None:
             return None
-        d = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), q_true))
-        return float(d @ np.linalg.solve(est.attitude_cov_rad2, d))
+        d0, d1, d2 = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), q_true)).tolist()
+        (a, b, c), (_, e, f), (_, _, i) = p.tolist()  # symmetric: d' P⁻¹ d by the adjugate, on scalars
+        c00, c01, c02 = e * i - f * f, c * f - b * i, b * f - c * e
+        c11, c12, c22 = a * i - c * c, b * c - a * f, a * e - b * b
+        det = a * c00 + b * c01 + c * c02
+        q = (d0 * (c00 * d0 + c01 * d1 + c02 * d2) + d1 * (c01 * d0 + c11 * d1 + c12 * d2)
+             + d2 * (c02 * d0 + c12 * d1 + c22 * d2))
+        return float(q / det)
 
-    def _info(self, reward_terms) -> dict:
-        q_true = self.spacecraft.q_body_to_icrs
-        est = self.avionics.estimate()
+    def _info(self, reward_terms, est=None, q_true=None, pointing_error_rad=None) -> dict:
+        """The step's info; ``est`` (a fresh estimate), ``q_true`` (a copy of the true attitude) and the pointing
+        error (rad) when the step has them already."""
+        if q_true is None:
+            q_true = self.spacecraft.q_body_to_icrs
+        if est is None:
+            est = self.avionics.estimate()
+        if pointing_error_rad is None:
+            pointing_error_rad = float(rk.quat_angle_between(q_true, self._q_target))
         stats = self.avionics.last_stats
         info = {
             "time_s": float(self.spacecraft.time_s),
@@ -368,8 +393,8 @@ class AgileSlewEnv(gym.Env):
             "estimate_valid": bool(est.valid),
             "q_target": self._q_target.copy(),
             "omega_true_body": self.spacecraft.omega_body,
-            "attitude_error_arcsec": float(np.degrees(rk.quat_angle_between(q_true, est.q_body_to_icrs)) * 3600.0),
-            "pointing_error_deg": float(np.degrees(rk.quat_angle_between(q_true, self._q_target))),
+            "attitude_error_arcsec": math.degrees(float(rk.quat_angle_between(q_true, est.q_body_to_icrs))) * 3600.0,
+            "pointing_error_deg": math.degrees(pointing_error_rad),
             "update_rate_hz": stats["update_rate_hz"],
             "matching_latency_ms": stats["matching_latency_ms"],
             "tracker_mode": self.avionics.tracker_mode,
@@ -382,7 +407,7 @@ class AgileSlewEnv(gym.Env):
             "filter_restarts": stats["filter_restarts"],
             "n_wrong_samples_total": self.avionics.n_wrong_samples_total,
             "reacquisition_times_s": self.avionics.reacquisition_times_s,
-            "attitude_sigma_arcsec": float(np.degrees(min(est.attitude_sigma_rad, np.pi)) * 3600.0),
+            "attitude_sigma_arcsec": math.degrees(min(float(est.attitude_sigma_rad), math.pi)) * 3600.0,
             "ekf_nees": self._nees(q_true, est),
             "reward_pointing": reward_terms[0],
             "reward_effort": reward_terms[1],

@@ -14,6 +14,7 @@ can be off by 0.1–0.3 mag. Stars without B − V (stored as 0 with a zero erro
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -195,7 +196,7 @@ class StarCatalog:
         v_by_z, z_sorted, z_order = self._z_index
         if len(z_order) == 0:
             return np.empty(0, dtype=np.int64)
-        chord = 2.0 * np.sin(radius_rad / 2.0) * (1 + 1e-12)
+        chord = 2.0 * math.sin(radius_rad / 2.0) * (1 + 1e-12)
         return catalog_kernels.cone_search_sorted_z(v_by_z, z_sorted, z_order, d, radius_rad, chord)
 
 

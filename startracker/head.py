@@ -189,7 +189,8 @@ class ColorHead:
 
         scenes = channel_scenes(self.color_camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies, validate=False)
         per_channel = [simulate_detections(sc, self.sensor_model, rng, fidelity=fidelity, validate=False) for sc in scenes]
-        fused = fuse_channel_centroids(per_channel, self.registration, gain_e_per_dn=self.sensor_model.gain_e_per_dn)
+        fused = fuse_channel_centroids(per_channel, self.registration, gain_e_per_dn=self.sensor_model.gain_e_per_dn,
+                                       validate=False)
         n = len(fused)
         total = fused.total_intensity
         det = Centroids(fused.xy, total, np.full(n, 1, dtype=np.int64), np.zeros(n, dtype=bool), total, total)

@@ -478,6 +478,26 @@ def _path_fractions(s: int) -> np.ndarray:
     return f
 
 
+_PLAN_OFFSETS: dict = {}
+
+
+def _plan_offsets(plan: ExposurePlan, s: int):
+    """Per (frozen) plan and S, once: ``spacing · arange(N)``, ``τ · linspace(0, 1, S)`` (the path instants are
+    ``(t0 + offset) + the first + the second``) and the rows of the mid instants, ``arange(N) S + S // 2``."""
+    key = (plan, s)
+    hit = _PLAN_OFFSETS.get(key)
+    if hit is not None:
+        return hit
+    n = plan.n_exposures
+    hit = (plan.spacing_s * np.arange(n), plan.exposure_s * _path_fractions(s), np.arange(n) * s + s // 2)
+    for a in hit:
+        a.setflags(write=False)
+    if len(_PLAN_OFFSETS) > 256:
+        _PLAN_OFFSETS.clear()
+    _PLAN_OFFSETS[key] = hit
+    return hit
+
+
 def compute_scene(
     camera: Camera,
     catalog: StarCatalog,
@@ -551,12 +571,13 @@ def compute_scene(
 
     (half_diag, q_cb, r_cb, pinhole, f_mm, k1, pix_mm, cx, cy, w_px, h_px, f_px) = _camera_constants(camera)
     n = plan.n_exposures
-    starts = t0 + plan.start_offset_s + plan.spacing_s * np.arange(n)
-    path_times = starts[:, None] + plan.exposure_s * _path_fractions(s)[None, :]
+    start_steps, path_steps, mid_rows = _plan_offsets(plan, s)
+    starts = (t0 + plan.start_offset_s) + start_steps
+    path_times = starts[:, None] + path_steps[None, :]
     q_bw = _evaluate_attitude(attitude, path_times.ravel(), validate)
     r_cw, q_cam_mid, centre, drift = sk.camera_frames(q_bw, q_cb, r_cb, s)
-    radius = min(half_diag + drift + (margin + 2.0) / f_px + 1e-6, np.pi)
-    idx = catalog.cone_search(centre, radius)
+    radius = min(half_diag + drift + (margin + 2.0) / f_px + 1e-6, math.pi)
+    idx = catalog.cone_search(centre, radius, validate=False)  # a unit float64 centre, radius in (0, π]
 
     if pinhole:
         keep, xy_path, visible = sk.project_scene(r_cw, catalog.vectors, idx, f_mm, k1, pix_mm, cx, cy, s, w_px, h_px,
@@ -569,7 +590,6 @@ def compute_scene(
             np.ascontiguousarray(in_front).reshape(n * s, len(idx)), s, w_px, h_px, float(margin))
     idx = idx[keep]
 
-    mid_rows = np.arange(n) * s + s // 2
     views = []
     if bodies:
         r_cw_mid = r_cw[mid_rows]

@@ -368,3 +368,43 @@ def test_color_identification_bad_input():
         identify_color(xy, cam, cat, [0.1, 0.2, 0.3], color_sigma=-1.0)
     r = identify_color(xy[:2], cam, cat, [0.1, 0.2])
     assert not r.success and "fewer than 3" in r.status
+
+
+def _mutual_nearest_reference(a, b, radius):
+    """Mutual nearest neighbours within ``radius`` by two k-d trees (the independent truth)."""
+    da, ja = cKDTree(b).query(a, k=1, distance_upper_bound=radius)
+    _, ib = cKDTree(a).query(b, k=1, distance_upper_bound=radius)
+    i = np.flatnonzero(np.isfinite(da))
+    keep = ib[ja[i]] == i
+    return i[keep], ja[i][keep]
+
+
+def test_mutual_nearest_kernel_matches_kdtrees():
+    """The compiled pairing of two channels' centroids finds the same mutual-nearest pairs as two k-d trees."""
+    from startracker.kernels.color import mutual_nearest
+
+    rng = np.random.default_rng(7)
+    for k, m in ((0, 5), (5, 0), (1, 1), (40, 35), (200, 180)):
+        a = rng.uniform(0, 60, (k, 2))
+        b = np.concatenate([a[: min(k, m)] + rng.normal(0, 0.7, (min(k, m), 2)), rng.uniform(0, 60, (m - min(k, m), 2))])
+        i, j = mutual_nearest(a, b, 2.0)
+        if k and m:
+            ri, rj = _mutual_nearest_reference(a, b, 2.0)
+        else:
+            ri = rj = np.zeros(0, dtype=np.int64)
+        np.testing.assert_array_equal(i, ri)
+        np.testing.assert_array_equal(j, rj)
+        assert np.all(np.hypot(*(a[i] - b[j]).T) < 2.0)
+
+
+def test_fusion_without_validation_is_the_same(color_frames):
+    """The per-frame call (``validate=False``) fuses exactly as the checked call does."""
+    cc, reg, model, frames = color_frames
+    scenes, images = frames[0]
+    cents = [extract_centroids(im) for im in images]
+    a = fuse_channel_centroids(cents, reg, gain_e_per_dn=model.gain_e_per_dn)
+    b = fuse_channel_centroids(cents, reg, gain_e_per_dn=model.gain_e_per_dn, validate=False)
+    assert len(a) > 5
+    for name in ("xy", "intensity", "channel_index", "n_channels", "has_color"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    np.testing.assert_array_equal(np.isnan(a.color_ratio), np.isnan(b.color_ratio))

@@ -23,6 +23,7 @@ from startracker.optics import Camera, camera_preset
 from startracker.photometry import Photometry
 from startracker.scene import BrightBody, ExposurePlan, compute_scene, scene_from_tracks
 from startracker.catalog import load_catalog
+from startracker.rotations import quat_random
 
 SMALL = Camera(resolution=(128, 128))
 
@@ -182,6 +183,33 @@ def test_stray_light_raises_a_gradient_toward_the_sun_and_blinds_inside_exclusio
         assert len(simulate_detections(sc, model, np.random.default_rng(0), fidelity)) == 0
     with pytest.raises(ValueError):
         background_field(compute_scene(cam, cat, att, plan, 0.0, bright_bodies=[BrightBody("jupiter", (1, 0, 0))]), model)
+
+
+def test_quiet_sky_background_is_the_sky_every_frame_and_a_bright_body_still_counts():
+    """The background of frames without bright bodies (computed once per camera, plan and model) is the sky's
+    surface brightness over the open time at every attitude and time; a sun in between raises that frame's
+    background only, and the next quiet frame is back to the sky."""
+    cam = camera_preset("paper000")
+    cat = load_catalog(5.0)
+    model = SensorModel()
+    plan = ExposurePlan(7, 1e-3)
+    sky_pe = model.photometry.surface_pe_rate_per_px(model.sky_mag_per_arcsec2, cam.pixel_size_um,
+                                                     cam.focal_length_mm) * 7 * 1e-3
+    a = np.radians(40.0)
+    sun = BrightBody("sun", (np.sin(a), 0.0, np.cos(a)))
+    rng = np.random.default_rng(4)
+    for k in range(4):
+        q = quat_random(rng)
+        sc = compute_scene(cam, cat, lambda t: np.tile(q, (len(t), 1)), plan, 0.3 * k)
+        bg = background_field(sc, model)
+        assert bg.flat and not bg.blinded
+        assert bg.opt0 == pytest.approx(sky_pe, rel=1e-12)
+        assert bg.dark_e == pytest.approx(model.dark_current_e_per_s * plan.integration_window_s, rel=1e-12)
+        lit = background_field(compute_scene(cam, cat, lambda t: np.tile([1.0, 0, 0, 0], (len(t), 1)), plan, 0.3 * k,
+                                             bright_bodies=[sun]), model)
+        assert lit.opt0 > 2 * sky_pe and not lit.flat
+    other = dataclasses.replace(model, sky_mag_per_arcsec2=model.sky_mag_per_arcsec2 - 2.5)  # 10× brighter sky
+    assert background_field(sc, other).opt0 == pytest.approx(10 * sky_pe, rel=1e-9)
 
 
 # ------------------------------------------------------------------------------------- false objects

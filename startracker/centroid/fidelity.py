@@ -157,9 +157,29 @@ def _sensor_vector(model: SensorModel) -> np.ndarray:
 
 
 def _background_vector(bg) -> np.ndarray:
-    """The ``background`` vector of :mod:`startracker.kernels.centroid` for a BackgroundField."""
-    return np.array([bg.opt0, bg.opt_dx, bg.opt_dy, bg.cx, bg.cy, bg.dark_e, bg.gain, bg.enf2_c, bg.read_var_e2,
-                     bg.prnu_sigma, bg.gain_e_per_dn, bg.bias_dn, bg.integration_s], dtype=np.float64)
+    """The ``background`` vector of :mod:`startracker.kernels.centroid` for a BackgroundField (once per object:
+    a quiet sky's background is the same object frame after frame)."""
+    return _cached(bg, lambda b: np.array([b.opt0, b.opt_dx, b.opt_dy, b.cx, b.cy, b.dark_e, b.gain, b.enf2_c,
+                                           b.read_var_e2, b.prnu_sigma, b.gain_e_per_dn, b.bias_dn, b.integration_s],
+                                          dtype=np.float64))
+
+
+_PHOTOMETRY_CACHE: dict = {}
+
+
+def _star_pe_constants(model: SensorModel):
+    """``(pe/s at V = 0, colour term per B−V)`` of the model's photometry, so that a frame's star electrons are
+    ``rate0 · 10^(−0.4 (V + c · (B−V))) · τ``, the formula of :meth:`SensorModel.star_pe`, without re-checking
+    the scene's float64 magnitudes."""
+    hit = _PHOTOMETRY_CACHE.get(id(model))
+    if hit is not None and hit[0] is model:
+        return hit[1]
+    ph = model.photometry
+    v = (float(ph.pe_per_s_at_v0), float(ph.color_term_per_bv))
+    if len(_PHOTOMETRY_CACHE) > 64:
+        _PHOTOMETRY_CACHE.clear()
+    _PHOTOMETRY_CACHE[id(model)] = (model, v)
+    return v
 
 
 _KINDS = np.array([KIND_STAR, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_NOISE], dtype=np.int64)
@@ -177,30 +197,35 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
     (:func:`startracker.kernels.centroid.centroid_detections`)."""
     n_cols, n_rows = scene.camera.resolution
     bg = background_field(scene, model)
-    tau = scene.plan.exposure_s
-    n = scene.plan.n_exposures
-    fo = draw_false_objects(scene, model, rng) if include_false else _NO_FALSE
-    star_pe = model.star_pe(scene.vmag, scene.bv, tau)
+    plan = scene.plan
+    tau = plan.exposure_s
+    n = plan.n_exposures
+    fo = draw_false_objects(scene, model, rng, validate=False) if include_false else _NO_FALSE
+    rate0, color_term = _star_pe_constants(model)
+    star_pe = rate0 * 10.0 ** (-0.4 * (scene.vmag + color_term * scene.bv)) * tau
     nd = len(fo.debris_vmag)
     if nd:
-        debris_pe = model.star_pe(fo.debris_vmag, np.zeros(nd), tau)
-        t_mid = scene.t_frame_start + 0.5 * scene.plan.frame_period_s
+        debris_pe = rate0 * 10.0 ** (-0.4 * (fo.debris_vmag + color_term * np.zeros(nd))) * tau
+        t_mid = scene.t_frame_start + 0.5 * plan.frame_period_s
         t_start = scene.path_times[:, 0] - t_mid
         t_end = scene.path_times[:, -1] - t_mid
     else:
         debris_pe = t_start = t_end = _EMPTY_1
-    n_cand = n * scene.n_stars + n * nd + len(fo.cosmic_e)
+    n_cand = n * len(scene.star_index) + n * nd + len(fo.cosmic_e)
     u = rng.random(n_cand)
-    z = rng.standard_normal((n_cand, 3))
     if include_false:
         _, hot_idx, hot_rate = fixed_pattern(model, scene.camera.resolution)
-        z_hot = rng.standard_normal(len(hot_idx)) if len(hot_idx) else _EMPTY_1
+        # the candidates' three normals and the hot pixels' one in one draw (the stream of two draws in that order)
+        zz = rng.standard_normal(3 * n_cand + len(hot_idx))
+        z = zz[:3 * n_cand].reshape(n_cand, 3)
+        z_hot = zz[3 * n_cand:] if len(hot_idx) else _EMPTY_1
         f_lin, f_dn = draw_false_pixels(bg, k_sigma, n_cols, n_rows, model, rng)
     else:
+        z = rng.standard_normal((n_cand, 3))
         hot_idx, hot_rate, z_hot, f_lin, f_dn = _EMPTY_HOT_I, _EMPTY_HOT, _EMPTY_1, _EMPTY_I, _EMPTY_1
     xy, inten, area, sat, peak, snr, star, expo, kind, truth_xy, bg_dn, noise_dn = ck.centroid_detections(
         scene.xy_path, scene.visible, star_pe, fo.debris_xy0, fo.debris_velocity_px_s, debris_pe, t_start, t_end,
-        fo.cosmic_start_xy, fo.cosmic_end_xy, fo.cosmic_e, hot_idx, hot_rate, f_lin, np.asarray(f_dn, dtype=np.float64),
+        fo.cosmic_start_xy, fo.cosmic_end_xy, fo.cosmic_e, hot_idx, hot_rate, f_lin, f_dn,
         u, z, z_hot, _background_vector(bg), _sensor_vector(model), _factor_vector(err), float(k_sigma),
         n_cols, n_rows, _KINDS)
     return Centroids(xy, inten, area, sat, peak, snr, bg_dn, noise_dn, star, expo, kind, truth_xy)

@@ -75,14 +75,36 @@ def channel_scenes(color_camera: ColorCamera, catalog: StarCatalog, attitude, pl
     """
     if not isinstance(color_camera, ColorCamera):
         raise TypeError(f"color_camera must be a ColorCamera, got {type(color_camera).__name__}")
+    shift = _channel_magnitude_shift(color_camera, catalog) if isinstance(catalog, StarCatalog) else None
     out = []
     for i, cam in enumerate(color_camera.channel_cameras):
         sc = compute_scene(cam, catalog, attitude, plan, t_frame_start, **scene_kwargs)
         if sc.n_stars:
-            e = color_camera.response.electrons(np.clip(sc.bv, *BV_RANGE))[:, i]
-            sc = replace(sc, vmag=sc.vmag - 2.5 * np.log10(e))
+            # a fresh scene nobody else holds: set its channel magnitudes in place rather than copy it
+            object.__setattr__(sc, "vmag", sc.vmag - shift[sc.star_index, i])
         out.append(sc)
     return tuple(out)
+
+
+_SHIFT_CACHE: dict = {}
+
+
+def _channel_magnitude_shift(color_camera: ColorCamera, catalog: StarCatalog) -> np.ndarray:
+    """``2.5 log10 e_c(B−V)`` of every catalog star in every channel, (n_stars, 3): computed once per (frozen)
+    colour camera and catalog, since a star's channel magnitude is ``V`` minus it."""
+    key = (id(color_camera), id(catalog))
+    hit = _SHIFT_CACHE.get(key)
+    if hit is not None and hit[0] is color_camera and hit[1] is catalog:
+        return hit[2]
+    if len(catalog.bv):
+        shift = 2.5 * np.log10(color_camera.response.electrons(np.clip(catalog.bv, *BV_RANGE)))
+    else:
+        shift = np.zeros((0, 3))
+    shift.setflags(write=False)
+    if len(_SHIFT_CACHE) > 16:
+        _SHIFT_CACHE.clear()
+    _SHIFT_CACHE[key] = (color_camera, catalog, shift)
+    return shift
 
 
 def _map_between_channels(cam_from: Camera, cam_to: Camera, xy: np.ndarray) -> np.ndarray:

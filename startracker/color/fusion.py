@@ -7,13 +7,14 @@ The channels' centroids merged (:func:`fuse_channel_centroids`), or the register
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from startracker.color.registration import ColorRegistration
+from startracker.kernels.color import mutual_nearest
 from startracker.validation import as_float_array
 
 __all__ = [
@@ -134,20 +135,20 @@ class FusedDetections:
         return self.intensity.sum(axis=1)
 
 
+_NO_PAIRS = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+
+
 def _mutual_nearest(a: np.ndarray, b: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (i into a, j into b) that are each other's nearest neighbour within ``radius``."""
+    """Index pairs (i into a, j into b) that are each other's nearest neighbour within ``radius``
+    (:func:`startracker.kernels.color.mutual_nearest`)."""
     if len(a) == 0 or len(b) == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    da, ja = cKDTree(b).query(a, k=1, distance_upper_bound=radius)
-    db, ib = cKDTree(a).query(b, k=1, distance_upper_bound=radius)
-    i = np.flatnonzero(np.isfinite(da))
-    j = ja[i]
-    mutual = ib[j] == i
-    return i[mutual], j[mutual]
+        return _NO_PAIRS
+    return mutual_nearest(np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),
+                          float(radius))
 
 
 def fuse_channel_centroids(centroids, registration: ColorRegistration, *, match_radius_px: float = 2.0,
-                           min_channels: int = 2, gain_e_per_dn: float = 1.0) -> FusedDetections:
+                           min_channels: int = 2, gain_e_per_dn: float = 1.0, validate: bool = True) -> FusedDetections:
     """Fuse the three channels' centroids into one detection list (centroid-level fusion).
 
     Red and blue centroids are mapped into the green frame with the calibrated registration; detections of
@@ -169,11 +170,16 @@ def fuse_channel_centroids(centroids, registration: ColorRegistration, *, match_
         1, 2 or 3.
     gain_e_per_dn : float
         Conversion gain of the detectors (> 0), e⁻/DN.
+    validate : bool
+        False skips the checks, for a per-frame caller passing three :class:`startracker.centroid.Centroids`
+        (float64 (K, 2) ``xy``, (K,) ``intensity`` and ``area``), a ColorRegistration and valid floats.
 
     Returns
     -------
     FusedDetections
     """
+    if not validate:
+        return _fuse(centroids, registration, float(match_radius_px), min_channels, float(gain_e_per_dn))
     cs = list(centroids)
     if len(cs) != 3:
         raise ValueError(f"centroids must hold 3 channel detection lists (red, green, blue), got {len(cs)}")
@@ -185,14 +191,39 @@ def fuse_channel_centroids(centroids, registration: ColorRegistration, *, match_
         raise ValueError(f"min_channels must be 1, 2 or 3, got {min_channels!r}")
     if not (np.isfinite(gain_e_per_dn) and gain_e_per_dn > 0):
         raise ValueError(f"gain_e_per_dn must be finite and > 0, got {gain_e_per_dn}")
-    xy, inten, var = [], [], []
+    checked = []
     for i, c in enumerate(cs):
         p = as_float_array(c.xy, f"centroids[{i}].xy", last_dim=2).reshape(-1, 2)
         it = as_float_array(c.intensity, f"centroids[{i}].intensity").reshape(-1)
         area = as_float_array(c.area, f"centroids[{i}].area").reshape(-1)
         if len(it) != len(p) or len(area) != len(p):
             raise ValueError(f"centroids[{i}] has inconsistent lengths")
-        noise = float(c.noise_dn) if np.isfinite(c.noise_dn) else 0.0
+        checked.append(_ChannelDetections(p, it, area, c.noise_dn))
+    return _fuse(checked, registration, float(match_radius_px), min_channels, float(gain_e_per_dn))
+
+
+@dataclass(frozen=True)
+class _ChannelDetections:
+    xy: np.ndarray
+    intensity: np.ndarray
+    area: np.ndarray
+    noise_dn: float
+
+
+def _unpaired(n: int, paired: np.ndarray) -> np.ndarray:
+    """Increasing indices in ``range(n)`` that ``paired`` (−1: none) does not hold."""
+    free = np.ones(n, dtype=bool)
+    free[paired[paired >= 0]] = False
+    return np.flatnonzero(free)
+
+
+def _fuse(cs, registration: ColorRegistration, match_radius_px: float, min_channels: int,
+          gain_e_per_dn: float) -> FusedDetections:
+    """:func:`fuse_channel_centroids` on checked channel detections."""
+    xy, inten, var = [], [], []
+    for i, c in enumerate(cs):
+        p, it, area = c.xy, c.intensity, c.area
+        noise = float(c.noise_dn) if math.isfinite(c.noise_dn) else 0.0
         it_pos = np.maximum(it, 1e-9)
         xy.append(registration.to_green(i, p) if len(p) else p)
         inten.append(it)
@@ -205,8 +236,8 @@ def fuse_channel_centroids(centroids, registration: ColorRegistration, *, match_
     idx[gi, r] = ri
     gi, bi = _mutual_nearest(xy[g], xy[b], match_radius_px)
     idx[gi, b] = bi
-    free_r = np.setdiff1d(np.arange(len(xy[r])), idx[:, r])
-    free_b = np.setdiff1d(np.arange(len(xy[b])), idx[:, b])
+    free_r = _unpaired(len(xy[r]), idx[:, r])
+    free_b = _unpaired(len(xy[b]), idx[:, b])
     ri, bi = _mutual_nearest(xy[r][free_r], xy[b][free_b], match_radius_px)
     rb = np.full((len(ri), 3), -1, dtype=np.int64)
     rb[:, r], rb[:, b] = free_r[ri], free_b[bi]

@@ -92,8 +92,14 @@ class BackgroundField:
         return self.mean_dn(x, y) + k_sigma * self.sigma_dn(x, y)
 
 
+_QUIET_CACHE: dict = {}
+
+
 def background_field(scene: Scene, model: SensorModel) -> BackgroundField:
     """The frame's expected background from the sky, the bright bodies (stray light) and dark current.
+
+    Without bright bodies the background depends only on the (frozen) camera, plan and model: it is computed
+    once per such triple and the same object is returned for every frame.
 
     Raises
     ------
@@ -102,6 +108,20 @@ def background_field(scene: Scene, model: SensorModel) -> BackgroundField:
     """
     cam = scene.camera
     plan = scene.plan
+    if not scene.bright_bodies:
+        key = (id(cam), id(model), plan)
+        hit = _QUIET_CACHE.get(key)
+        if hit is not None and hit[0] is cam and hit[1] is model:
+            return hit[2]
+        bg = _background_field(scene, cam, plan, model)
+        if len(_QUIET_CACHE) > 64:
+            _QUIET_CACHE.clear()
+        _QUIET_CACHE[key] = (cam, model, bg)
+        return bg
+    return _background_field(scene, cam, plan, model)
+
+
+def _background_field(scene: Scene, cam, plan, model: SensorModel) -> BackgroundField:
     t_open = plan.total_exposure_s
     sky_rate = model.photometry.surface_pe_rate_per_px(model.sky_mag_per_arcsec2, cam.pixel_size_um, cam.focal_length_mm)
     opt0 = sky_rate * t_open
@@ -167,25 +187,45 @@ class FalseObjects:
 
     @classmethod
     def none(cls) -> "FalseObjects":
-        z2 = np.zeros((0, 2))
-        return cls(z2, z2, np.zeros(0), z2, z2, np.zeros(0))
+        """No false objects (one shared instance: its arrays are empty, so nothing can be written into them)."""
+        return _NONE
 
 
-def draw_false_objects(scene: Scene, model: SensorModel, rng: np.random.Generator) -> FalseObjects:
+_NONE = FalseObjects(*(np.zeros(shape) for shape in ((0, 2), (0, 2), 0, (0, 2), (0, 2), 0)))
+_AREA_CACHE: dict = {}
+
+
+def _detector_area_cm2(cam) -> float:
+    """Sensitive area of a (frozen) camera's detector, cm² (once per camera object)."""
+    hit = _AREA_CACHE.get(id(cam))
+    if hit is not None and hit[0] is cam:
+        return hit[1]
+    w, h = cam.resolution
+    area = (w * cam.pixel_size_um * 1e-4) * (h * cam.pixel_size_um * 1e-4)
+    if len(_AREA_CACHE) > 64:
+        _AREA_CACHE.clear()
+    _AREA_CACHE[id(cam)] = (cam, area)
+    return area
+
+
+def draw_false_objects(scene: Scene, model: SensorModel, rng: np.random.Generator, *, validate: bool = True) -> FalseObjects:
     """Draw the frame's debris streaks and cosmic-ray hits.
 
     Debris: ``Poisson(debris_rate_per_frame)`` objects, uniform over the detector, moving in a uniform
     direction at a log-uniform 100–20000 px/s (seen as one dash per exposure). Cosmic rays:
     ``Poisson(rate · area · integration window)`` straight tracks 0–6 px long, log-normal charge.
+    ``validate=False`` skips the check of ``rng`` (a per-frame caller that checked it).
     """
-    check_rng(rng)
+    if validate:
+        check_rng(rng)
     cam = scene.camera
-    w, h = cam.resolution
-    area_cm2 = (w * cam.pixel_size_um * 1e-4) * (h * cam.pixel_size_um * 1e-4)
-    n_d, n_c = (int(v) for v in rng.poisson([model.debris_rate_per_frame,
-                                               model.cosmic_ray_rate_per_cm2_s * area_cm2 * scene.plan.integration_window_s]))
+    area_cm2 = _detector_area_cm2(cam)
+    # two scalar draws: the same stream as one draw of the pair
+    n_d = int(rng.poisson(model.debris_rate_per_frame))
+    n_c = int(rng.poisson(model.cosmic_ray_rate_per_cm2_s * area_cm2 * scene.plan.integration_window_s))
     if n_d == 0 and n_c == 0:
-        return FalseObjects.none()
+        return _NONE
+    w, h = cam.resolution
     size = np.array([w, h], dtype=float)
     u = rng.random((n_d, 6))  # position (2), direction, log-speed, magnitude, unused
     xy0 = u[:, :2] * size - 0.5

@@ -338,11 +338,18 @@ class SparseFrame:
         return img.reshape(n_rows, n_cols)
 
 
-def draw_false_pixels(bg: BackgroundField, k_sigma: float, n_cols: int, n_rows: int, model: SensorModel, rng):
-    """Background pixels above the threshold, drawn from the noise statistics (module docstring).
+_CELL_CACHE: dict = {}
 
-    Returns linear indices (F,) (they may repeat) and their DN values (F,).
-    """
+
+def _false_pixel_cells(bg: BackgroundField, k_sigma: float, n_cols: int, n_rows: int, model: SensorModel):
+    """The grid of :func:`draw_false_pixels` and the per-cell statistics of its threshold crossings
+    (:func:`startracker.kernels.imaging.false_pixel_cells`), with the model's DN constants: computed once per
+    (background object, threshold, detector size, model), since a quiet sky's background is the same object
+    frame after frame (:func:`startracker.imaging.background_field`)."""
+    key = (id(bg), float(k_sigma), n_cols, n_rows, id(model))
+    hit = _CELL_CACHE.get(key)
+    if hit is not None and hit[0] is bg and hit[1] is model:
+        return hit[2]
     if bg.flat:  # one cell: the crossing probability is the same everywhere
         gx = gy = 1
     else:
@@ -357,14 +364,33 @@ def draw_false_pixels(bg: BackgroundField, k_sigma: float, n_cols: int, n_rows: 
                               float(bg.gain), float(bg.enf2_c), float(bg.dark_e), float(bg.read_var_e2),
                               float(bg.prnu_sigma), float(model.gain_e_per_dn), float(model.bias_dn),
                               float(model.saturation_dn), float(k_sigma))
-    lam = cells[0][-1]
+    value = (float(cells[0][-1]), ce, re, cells, (float(model.full_well_e), float(model.gain_e_per_dn),
+                                                   float(model.bias_dn), float(model.adc_max_dn)))
+    if len(_CELL_CACHE) > 64:
+        _CELL_CACHE.clear()
+    _CELL_CACHE[key] = (bg, model, value)
+    return value
+
+
+# shared empty results (nothing can be written into them; writable, like the kernel's outputs: one signature)
+_NO_FALSE_LIN = np.zeros(0, dtype=np.int64)
+_NO_FALSE_DN = np.zeros(0)
+
+
+def draw_false_pixels(bg: BackgroundField, k_sigma: float, n_cols: int, n_rows: int, model: SensorModel, rng):
+    """Background pixels above the threshold, drawn from the noise statistics (module docstring).
+
+    Draws one Poisson total, then four uniforms per pixel.
+
+    Returns linear indices (F,) (they may repeat) and their DN values (F,) (shared empty arrays when F = 0).
+    """
+    lam, ce, re, cells, dn_consts = _false_pixel_cells(bg, k_sigma, n_cols, n_rows, model)
     # a Poisson process over the cells: Poisson total, cells in proportion to their expected counts
     tot = int(rng.poisson(lam)) if lam > 0 else 0
     if tot == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0)
+        return _NO_FALSE_LIN, _NO_FALSE_DN
     u = rng.random((4, tot))
-    return place_false_pixels(u[0], u[1], u[2], u[3], cells[0], ce, re, *cells[1:], float(model.full_well_e),
-                              float(model.gain_e_per_dn), float(model.bias_dn), float(model.adc_max_dn))
+    return place_false_pixels(u[0], u[1], u[2], u[3], cells[0], ce, re, *cells[1:], *dn_consts)
 
 
 def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_sigma: float = 5.0, *,

@@ -40,6 +40,10 @@ def kernel_cache_dir() -> Path:
     once. The folder is ``$NUMBA_CACHE_DIR/startracker-<digest>`` when the user sets ``NUMBA_CACHE_DIR``, else
     ``kernels/__pycache__/numba-<digest>`` beside the code when that is writable, else
     ``$XDG_CACHE_HOME/startracker-gym/numba-<digest>`` (``~/.cache`` by default) for a read-only install.
+
+    Numba has one cache folder per process (``numba.config.CACHE_DIR``): importing the kernels sets it, so other
+    ``cache=True`` functions compiled later in the same process are cached there too (each under its own source
+    path; nothing is shared or overwritten).
     """
     user = os.environ.get("NUMBA_CACHE_DIR")
     if user:

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from startracker.identify.frame import Frame
-from startracker.kernels.identify import verify_hypothesis
+from startracker.kernels.identify import binom_tail, verify_hypothesis
 
 MAX_ROUNDS = 8  # refinement rounds of the verification
 STABLE_FIT = 10  # matches above which a refit that only adds matches ends the refinement
@@ -133,26 +133,6 @@ def _poisson_tail(mu: float, k: int) -> float:
     return max(0.0, 1.0 - cdf)
 
 
-def _binom_tail(n: int, p: float, e: int) -> float:
-    """P(Binomial(n, p) >= e), summed from the tail term upwards (accurate for tiny p)."""
-    if e <= 0:
-        return 1.0
-    if e > n:
-        return 0.0
-    if p >= 1.0:
-        return 1.0
-    q = 1.0 - p
-    term = math.exp(math.lgamma(n + 1) - math.lgamma(e + 1) - math.lgamma(n - e + 1) + e * math.log(p) + (n - e) * math.log(q)) if p > 0 else 0.0
-    total = term
-    ratio = p / q
-    x = e
-    while x < n and term > 1e-6 * total:
-        term *= (n - x) / (x + 1) * ratio
-        total += term
-        x += 1
-    return min(total, 1.0)
-
-
 def required_matches(lam: float, n_det: int, p: float, false_alarm: float) -> int:
     """Smallest number of matched detections that keeps ``λ · P(chance confirmations)`` below the limit.
 
@@ -174,7 +154,7 @@ def required_matches(lam: float, n_det: int, p: float, false_alarm: float) -> in
     n_other = n_det - 3
     e = 1 if n_other >= 1 else 0
     while e <= n_other:
-        if lam * _binom_tail(n_other, p, e) <= false_alarm:
+        if lam * binom_tail(int(n_other), float(p), int(e)) <= false_alarm:
             return 3 + e
         e += 1
     return n_det + 1

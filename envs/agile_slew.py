@@ -9,6 +9,7 @@ import gymnasium as gym
 from gymnasium import spaces
 
 from envs.avionics import Avionics, AvionicsConfig, TRACKER_MODES
+from startracker.onboard import UnitConfig
 from envs.faults import Fault, FaultSchedule, random_fault_schedule
 from envs.spacecraft import Spacecraft
 from startracker.rotations import quat_from_rotvec, quat_integrate, quat_multiply, quat_normalize, quat_random
@@ -84,17 +85,17 @@ class AgileSlewEnv(gym.Env):
     | Argument | Default | Meaning |
     |---|---|---|
     | ``task`` | ``"slew"`` | ``"slew"`` or ``"hold"`` |
-    | ``control_period_s`` | 0.1 | time between actions, s |
-    | ``camera`` | ``"paper000"`` | camera head: ``paper000``, ``zy3``, ``paper003``, ``paper004`` (monochrome), or ``paper004_3cmos`` (paper 004's 3CMOS colour head: three registered detectors fused at centroid level; ``render()`` shows the registered colour image) |
-    | ``frame_rate_hz`` | 10.0 | camera frame rate; the frame period must be a multiple of ``control_period_s`` or divide it |
-    | ``exposure_mode`` | ``"multi"`` | ``"single"`` or ``"multi"`` |
-    | ``n_exposures`` | ``"adaptive"`` | N per multi-exposure frame: ``"adaptive"`` (from the rate) or an int 1..21 |
-    | ``identify_method`` | ``"pyramid"`` | lost-in-space method: ``pyramid``, ``voting``, ``brightness``, ``string`` |
-    | ``matcher`` | ``"dkvlut"`` | tracking matcher: ``dkvlut``, ``brute``, ``kdtree`` |
+    | ``control_period_s`` | 0.1 or one frame | time between actions, s (a whole number of frames; default 0.1 s, or one frame period when the camera's frames are longer) |
+    | ``camera`` | ``"paper000"`` | the star tracker: a preset (``paper000``, ``zy3``, ``paper003``, ``paper004`` monochrome, each with its paper's detector and exposure; ``paper004_3cmos``, paper 004's 3CMOS colour head: three registered detectors fused at centroid level, ``render()`` shows the registered colour image), a ``startracker.spec.StarTrackerSpec`` or its dict (``StarTrackerSpec.from_dict``), or a list of them, one per head with its own mounting |
+    | ``frame_rate_hz`` | the camera's | camera frame rate (paper000: 10 Hz, ZY-3: 4 Hz); ``control_period_s`` must be a whole number of frames |
+    | ``exposure_mode`` | the camera's | ``"single"`` or ``"multi"`` |
+    | ``n_exposures`` | the camera's (``"adaptive"``) | N per multi-exposure frame: ``"adaptive"`` (from the rate) or an int 1..max_exposures |
+    | ``identify_method`` | the camera's (``"pyramid"``) | lost-in-space method: ``pyramid``, ``voting``, ``brightness``, ``string`` |
+    | ``matcher`` | the camera's (``"dkvlut"``) | tracking matcher: ``dkvlut``, ``brute``, ``kdtree`` |
     | ``fidelity`` | ``"centroid"`` | ``"centroid"`` (fast) or ``"pixel"`` (rendered windows, centroiding) |
     | ``gyro_grade`` | ``"tactical"`` | ``ideal``, ``navigation``, ``tactical``, ``industrial`` |
-    | ``mag_limit`` | 6.0 | catalog limit, V |
-    | ``n_heads`` | 1 | optical heads: 2 mounts two copies of ``camera`` symmetric about body +z (paper 001); each runs its own state machine, the EKF fuses both, a lost head is re-acquired with the EKF attitude as an inertial prior |
+    | ``mag_limit`` | the camera's (6.0; ZY-3 5.5) | catalog limit, V |
+    | ``n_heads`` | 1, or the list's length | optical heads: 2 with one camera mounts two copies symmetric about body +z (paper 001); each runs its own state machine, the EKF fuses all, a lost head is re-acquired with the EKF attitude as an inertial prior |
     | ``head_separation_deg`` | 45 | angle between the two boresights, ° |
     | ``inertia_kg_m2`` | (5, 6, 4) | spacecraft inertia, diagonal or 3×3, kg m² |
     | ``n_wheels`` | 4 | 3 (orthogonal) or 4 (pyramid) |
@@ -123,17 +124,17 @@ class AgileSlewEnv(gym.Env):
         self,
         *,
         task: str = "slew",
-        control_period_s: float = 0.1,
-        camera: str = "paper000",
-        frame_rate_hz: float = 10.0,
-        exposure_mode: str = "multi",
-        n_exposures: int | str = "adaptive",
-        identify_method: str = "pyramid",
-        matcher: str = "dkvlut",
+        control_period_s: float | None = None,
+        camera="paper000",
+        frame_rate_hz: float | None = None,
+        exposure_mode: str | None = None,
+        n_exposures: int | str | None = None,
+        identify_method: str | None = None,
+        matcher: str | None = None,
         fidelity: str = "centroid",
         gyro_grade: str = "tactical",
-        mag_limit: float = 6.0,
-        n_heads: int = 1,
+        mag_limit: float | None = None,
+        n_heads: int | None = None,
         head_separation_deg: float = 45.0,
         inertia_kg_m2=(5.0, 6.0, 4.0),
         n_wheels: int = 4,
@@ -156,8 +157,8 @@ class AgileSlewEnv(gym.Env):
         if task not in ("slew", "hold"):
             raise ValueError(f"task must be 'slew' or 'hold', got {task!r}")
         for name, value in (
-            ("control_period_s", control_period_s),
-            ("frame_rate_hz", frame_rate_hz),
+            ("control_period_s", 0.1 if control_period_s is None else control_period_s),
+            ("frame_rate_hz", 10.0 if frame_rate_hz is None else frame_rate_hz),
             ("max_rate_deg_s", max_rate_deg_s),
             ("settle_tolerance_deg", settle_tolerance_deg),
             ("settle_rate_deg_s", settle_rate_deg_s),
@@ -185,6 +186,10 @@ class AgileSlewEnv(gym.Env):
             raise ValueError(f"disturbance_torque_Nm must be >= 0, got {disturbance_torque_Nm!r}")
 
         self.task = task
+        if control_period_s is None:
+            # 0.1 s, or one frame when the camera's frames are longer (ZY-3: 4 Hz)
+            period = 1.0 / float(frame_rate_hz) if frame_rate_hz is not None else UnitConfig(camera=camera).frame_period_s
+            control_period_s = max(0.1, period)
         self.control_period_s = float(control_period_s)
         self.slew_angle_deg_range = (lo, hi)
         self.settle_tolerance_rad = np.radians(settle_tolerance_deg)
@@ -205,7 +210,7 @@ class AgileSlewEnv(gym.Env):
         self.avionics = Avionics(
             AvionicsConfig(
                 camera=camera,
-                frame_period_s=1.0 / float(frame_rate_hz),
+                frame_period_s=None if frame_rate_hz is None else 1.0 / float(frame_rate_hz),
                 control_period_s=self.control_period_s,
                 exposure_mode=exposure_mode,
                 n_exposures=n_exposures,

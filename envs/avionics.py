@@ -31,13 +31,18 @@ class AvionicsConfig(UnitConfig):
 
     def __post_init__(self):
         # whole frames per control period first: a frame rate the env cannot step is the env argument to name
+        if self.frame_period_s is not None:
+            self._check_ratio()
+        super().__post_init__()  # resolves the frame period from the camera spec
+        self._check_ratio()
+
+    def _check_ratio(self) -> None:
         ratio = self.control_period_s / self.frame_period_s
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError(
                 "frame_rate_hz * control_period_s must be a positive integer (whole frames per control period), "
                 f"got {ratio:.6g}"
             )
-        super().__post_init__()
 
 
 class Avionics(StarTrackerUnit):

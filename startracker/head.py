@@ -1,13 +1,15 @@
 """Camera heads: the true attitude history in, detections and the scene out, and a picture when someone looks.
 
-A head is one optical unit of the star tracker: optics (:class:`startracker.optics.Camera`, with its mounting
-``q_cam_to_body``), detector (:class:`startracker.imaging.SensorModel`) and the exposure time it is run with. Given
+A head is one optical unit of the star tracker, built from a :class:`startracker.spec.StarTrackerSpec` (a preset
+name, a spec or its dict): optics (:class:`startracker.optics.Camera`, with its mounting ``q_cam_to_body``),
+detector (:class:`startracker.imaging.SensorModel`) and the exposure time it is run with. Given
 the catalog, the truth history ``(t_s (S,), q_body_to_icrs (S, 4))`` that covers a frame, the frame's exposure plan
 and a random generator, :meth:`MonoHead.detections` returns what the detector reports (``fidelity="centroid"``:
 drawn from the scene truth with the pixel path's error model; ``"pixel"``: sparse rendering and centroiding) and
 the scene it imaged; :meth:`MonoHead.render` draws the full picture of that scene (only when someone looks).
 
-``MonoHead``: one detector (paper 000's intensified camera, ZY-3, ...). ``ColorHead``: paper 004's 3CMOS prism
+``MonoHead``: one detector (paper 000's intensified camera, ZY-3's APS, a user's own, ...), each preset with
+its own detector (:func:`startracker.spec.preset_spec`). ``ColorHead``: paper 004's 3CMOS prism
 camera: three channel scenes, per-channel detections, registered onto green with the calibration of paper 004 §3
 (done once, on the ground: a simulated rotary table with a fixed seed) and fused at centroid level.
 
@@ -31,12 +33,12 @@ import numpy as np
 
 from startracker.centroid import Centroids, simulate_detections
 from startracker.imaging import SensorModel, render_frame
-from startracker.optics import camera_preset
 from startracker.scene import compute_scene
+from startracker.spec import PRESET_NAMES, StarTrackerSpec, as_spec
 
-__all__ = ["MonoHead", "ColorHead", "make_head", "HEAD_CAMERAS", "Centroids"]
+__all__ = ["MonoHead", "ColorHead", "make_head", "HEAD_CAMERAS", "Centroids", "StarTrackerSpec"]
 
-HEAD_CAMERAS = ("paper000", "zy3", "paper003", "paper004", "paper004_3cmos")
+HEAD_CAMERAS = PRESET_NAMES
 CALIBRATION_SEED = 2024  # the ground calibration of the 3CMOS head (a property of the unit, not of an episode)
 
 
@@ -68,32 +70,36 @@ def _mark(rgb: np.ndarray, xy, color=(0, 255, 0), half: int = 6) -> np.ndarray:
 
 
 class MonoHead:
-    """One monochrome detector (paper 000's intensified sensor model) behind a preset camera.
+    """One monochrome detector behind its optics, as a :class:`startracker.spec.StarTrackerSpec` describes it.
 
     Parameters
     ----------
-    camera_name : str
-        A preset of :func:`startracker.optics.camera_preset` (``"paper000"``, ``"zy3"``, ...).
-    q_cam_to_body : array_like, shape (4,)
-        Mounting of the camera in the body frame (w, x, y, z). Default: boresight along body +z.
+    spec : str, StarTrackerSpec or dict
+        A preset of :data:`HEAD_CAMERAS` (``"paper000"``, ``"zy3"``, ...), a spec or its dict form.
+    q_cam_to_body : array_like, shape (4,), optional
+        Mounting of the camera in the body frame (w, x, y, z), replacing the spec's.
 
     Attributes
     ----------
+    spec : StarTrackerSpec
     camera : startracker.optics.Camera
     sensor_model : startracker.imaging.SensorModel
     exposure_s : float
-        Exposure time of a multi-exposure frame, s (1 ms: intensified, V = 6 in a millisecond).
+        Exposure time of each exposure of a multi-exposure frame, s (the spec's).
     is_color : bool
         False.
     """
 
     is_color = False
 
-    def __init__(self, camera_name: str, q_cam_to_body=(1.0, 0.0, 0.0, 0.0)):
-        self.camera_name = camera_name
-        self.camera = camera_preset(camera_name, q_cam_to_body=q_cam_to_body)
-        self.sensor_model = SensorModel.preset("paper000")
-        self.exposure_s = 1.0e-3  # intensified: millisecond exposures see V = 6
+    def __init__(self, spec="paper000", q_cam_to_body=None):
+        self.spec = as_spec(spec, q_cam_to_body)
+        if self.spec.color:
+            raise ValueError("a colour (3CMOS) spec needs a ColorHead: use make_head")
+        self.camera_name = self.spec.name
+        self.camera = self.spec.camera
+        self.sensor_model = self.spec.detector
+        self.exposure_s = self.spec.exposure.exposure_s
 
     def detections(self, catalog, truth, plan, t_frame, rng, fidelity="centroid", bright_bodies=()):
         """Image one frame of the truth history and detect its stars.
@@ -140,11 +146,11 @@ class MonoHead:
         return _mark(rgb, det.xy)
 
     def __getstate__(self):
-        # SensorModel holds a read-only mapping proxy (not picklable): rebuild the preset on load
-        return {"camera_name": self.camera_name, "q_cam_to_body": self.camera.q_cam_to_body}
+        # SensorModel holds a read-only mapping proxy (not picklable): rebuild from the spec's dict on load
+        return {"spec": self.spec.to_dict()}
 
     def __setstate__(self, d):
-        self.__init__(d["camera_name"], d["q_cam_to_body"])
+        self.__init__(d["spec"])
 
 
 class ColorHead:
@@ -152,17 +158,20 @@ class ColorHead:
 
     Parameters
     ----------
-    camera_name : str
-        ``"paper004_3cmos"``.
+    spec : str, StarTrackerSpec or dict
+        ``"paper004_3cmos"`` or a spec with ``color=True`` (paper 004's optics; its detector and exposure may
+        differ from the preset's).
 
     Attributes
     ----------
+    spec : StarTrackerSpec
     color_camera : startracker.color.ColorCamera
     camera : startracker.optics.Camera
         The green channel's camera (the registration target): the tracker's camera.
     sensor_model : startracker.imaging.SensorModel
+        Each channel's detector (the spec's).
     exposure_s : float
-        Exposure time of a multi-exposure frame, s (10 ms: plain CMOS).
+        Exposure time of each exposure of a multi-exposure frame, s (the spec's).
     registration : startracker.color.ColorRegistration
         Ground calibration (seed ``CALIBRATION_SEED``).
     is_color : bool
@@ -171,14 +180,17 @@ class ColorHead:
 
     is_color = True
 
-    def __init__(self, camera_name: str = "paper004_3cmos"):
-        from startracker.color import ColorCamera, ColorRegistration, generate_rotary_table_data, paper004_sensor_model
+    def __init__(self, spec="paper004_3cmos"):
+        from startracker.color import ColorCamera, ColorRegistration, generate_rotary_table_data
 
-        self.camera_name = camera_name
+        self.spec = as_spec(spec)
+        if not self.spec.color:
+            raise ValueError("a ColorHead needs a colour spec (color=True), e.g. 'paper004_3cmos'")
+        self.camera_name = self.spec.name
         self.color_camera = ColorCamera.paper004(translation="table2")
         self.camera = self.color_camera.channel_camera("green")
-        self.sensor_model = paper004_sensor_model()
-        self.exposure_s = 10.0e-3  # plain CMOS: longer exposures than the intensified head
+        self.sensor_model = self.spec.detector
+        self.exposure_s = self.spec.exposure.exposure_s
         rng = np.random.default_rng(CALIBRATION_SEED)
         self.registration = ColorRegistration.calibrate(generate_rotary_table_data(self.color_camera, rng), rng=rng)
 
@@ -208,26 +220,28 @@ class ColorHead:
         return _mark(rgb, det.xy, color=(255, 255, 0))
 
     def __getstate__(self):
-        return {"camera_name": self.camera_name}
+        return {"spec": self.spec.to_dict()}
 
     def __setstate__(self, d):
-        self.__init__(d["camera_name"])
+        self.__init__(d["spec"])
 
 
-def make_head(camera_name: str, q_cam_to_body=(1.0, 0.0, 0.0, 0.0)):
-    """The head for a camera name of :data:`HEAD_CAMERAS`.
+def make_head(camera="paper000", q_cam_to_body=None):
+    """The head a camera describes.
 
     Parameters
     ----------
-    camera_name : str
-        One of :data:`HEAD_CAMERAS`; ``"paper004_3cmos"`` gives a :class:`ColorHead`, the others a :class:`MonoHead`.
-    q_cam_to_body : array_like, shape (4,)
-        Mounting (monochrome heads; the colour head is mounted along body +z).
+    camera : str, StarTrackerSpec or dict
+        One of :data:`HEAD_CAMERAS`, a spec, or its dict form (:meth:`StarTrackerSpec.from_dict`); a colour spec
+        (``"paper004_3cmos"``) gives a :class:`ColorHead`, the others a :class:`MonoHead`.
+    q_cam_to_body : array_like, shape (4,), optional
+        Mounting replacing the spec's (monochrome heads; the colour head is mounted along body +z).
 
     Returns
     -------
     MonoHead or ColorHead
     """
-    if camera_name not in HEAD_CAMERAS:
-        raise ValueError(f"camera must be one of {HEAD_CAMERAS}, got {camera_name!r}")
-    return ColorHead(camera_name) if camera_name == "paper004_3cmos" else MonoHead(camera_name, q_cam_to_body)
+    spec = as_spec(camera)
+    if spec.color:
+        return ColorHead(spec)
+    return MonoHead(spec, q_cam_to_body)

@@ -31,7 +31,8 @@ span of truth) is one object, and :func:`run_star_tracker` is its thin driver.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -45,7 +46,8 @@ from startracker.multifov import MultiFovSensor
 from startracker.rotations import quat_conjugate, quat_integrate, quat_interpolate, quat_rotate
 from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
 from startracker.sensor import MODES, AttitudeSample, StarTracker
-from startracker.validation import as_float_array, check_rng
+from startracker.spec import IDENTIFY_METHODS, MATCHERS, StarTrackerSpec, as_spec
+from startracker.validation import as_float_array, check_real, check_rng
 
 __all__ = [
     "StarTrackerUnit",
@@ -59,10 +61,10 @@ __all__ = [
     "GYRO_GRADES",
     "HEAD_CAMERAS",
     "MODES",
+    "StarTrackerSpec",
+    "gyro_rate_sigma_rad_s",
 ]
 
-IDENTIFY_METHODS = ("pyramid", "voting", "brightness", "string")
-MATCHERS = ("dkvlut", "brute", "kdtree")
 WRONG_FLOOR_RAD = float(np.radians(20 / 3600))  # a sample is "wrong" beyond max(5σ, 20″)
 RESTART_AFTER_REJECTED_FRAMES = 3
 RESTART_BIAS_SIGMA_RAD_S = float(np.radians(1.0))
@@ -72,82 +74,160 @@ RESTART_BIAS_SIGMA_RAD_S = float(np.radians(1.0))
 class UnitConfig:
     """Heads, tracker, gyro and filter settings (validated here).
 
+    The heads are :class:`startracker.spec.StarTrackerSpec` descriptions (a preset name, a spec or its dict, or
+    a list of them, one per head with its own mounting). The fields that a spec also holds (frame period,
+    exposure, catalog limit, identification method, matcher) default to None, "the spec's"; a value given here
+    overrides every head's spec. After construction they hold the values in use.
+
     Attributes
     ----------
-    camera : str
-        Head camera, one of :data:`HEAD_CAMERAS`.
-    frame_period_s : float
-        Camera frame period, s (a whole number of gyro samples).
-    exposure_mode : {"single", "multi"}
-    n_exposures : int or "adaptive"
+    camera : str, StarTrackerSpec, dict, or list of them
+        One head (:data:`HEAD_CAMERAS`, a spec or its dict) or one per head.
+    frame_period_s : float or None
+        Camera frame period, s (a whole number of gyro samples); default the spec's frame rate.
+    exposure_mode : {"single", "multi"} or None
+    n_exposures : int, "adaptive" or None
         N per multi-exposure frame (1 .. ``max_exposures``), or chosen from the gyro rate.
     exposure_s : float or None
-        Exposure time of a multi-exposure frame, s; default the head's (1 ms intensified, 10 ms plain CMOS).
-    single_exposure_s : float
+        Exposure time of each exposure of a multi-exposure frame, s.
+    single_exposure_s : float or None
         Exposure time of a single-exposure (lost-in-space) frame, s.
-    max_exposures : int
-    identify_method : str
+    max_exposures : int or None
+    identify_method : str or None
         One of :data:`IDENTIFY_METHODS`.
-    matcher : str
+    matcher : str or None
         One of :data:`MATCHERS`.
     fidelity : {"centroid", "pixel"}
     gyro_grade : str
-        A key of :data:`startracker.imu.GYRO_GRADES`.
+        A key of :data:`startracker.imu.GYRO_GRADES`; also sets the tracker's gyro σ (:func:`gyro_rate_sigma_rad_s`).
     gyro_rate_hz : float
         Gyro sample rate, Hz: the truth history handed to :meth:`StarTrackerUnit.observe` is sampled at it.
-    mag_limit : float
+    mag_limit : float or None
         Catalog limit, V.
-    n_heads : {1, 2}
-        Two heads: paper 001's layout, symmetric about body +z.
+    n_heads : int or None
+        Heads: the length of a ``camera`` list; with one spec, 2 mounts two copies symmetric about body +z
+        (paper 001's layout); default 1.
     head_separation_deg : float
-        Angle between the two boresights, ° (10 .. 170).
+        Angle between the two boresights of ``n_heads=2`` with one spec, ° (10 .. 170).
     keep_images : bool
         Keep the last frame's scene and detections for :meth:`StarTrackerUnit.render_last_frame`.
+    heads : tuple of StarTrackerSpec
+        (Derived) the spec of every head, mounted, with the overrides above applied.
     """
 
-    camera: str = "paper000"
-    frame_period_s: float = 0.1
-    exposure_mode: str = "multi"
-    n_exposures: int | str = "adaptive"
+    camera: object = "paper000"
+    frame_period_s: float | None = None
+    exposure_mode: str | None = None
+    n_exposures: int | str | None = None
     exposure_s: float | None = None
-    single_exposure_s: float = 0.02
-    max_exposures: int = 21
-    identify_method: str = "pyramid"
-    matcher: str = "dkvlut"
+    single_exposure_s: float | None = None
+    max_exposures: int | None = None
+    identify_method: str | None = None
+    matcher: str | None = None
     fidelity: str = "centroid"
     gyro_grade: str = "tactical"
     gyro_rate_hz: float = 100.0
-    mag_limit: float = 6.0
-    n_heads: int = 1
+    mag_limit: float | None = None
+    n_heads: int | None = None
     head_separation_deg: float = 45.0
     keep_images: bool = False
+    heads: tuple = field(default=(), init=False, compare=False, repr=False)
 
     def __post_init__(self):
-        if self.camera not in HEAD_CAMERAS:
-            raise ValueError(f"camera must be one of {HEAD_CAMERAS}, got {self.camera!r}")
-        if self.n_heads not in (1, 2) or isinstance(self.n_heads, bool):
-            raise ValueError(f"n_heads must be 1 or 2, got {self.n_heads!r}")
-        if self.n_heads == 2 and self.camera == "paper004_3cmos":
-            raise ValueError("n_heads=2 is available for the monochrome cameras only, not camera='paper004_3cmos'")
-        if not (np.isfinite(self.head_separation_deg) and 10.0 <= self.head_separation_deg <= 170.0):
-            raise ValueError(f"head_separation_deg must be in [10, 170] (heads must not overlap or point the same way), "
-                             f"got {self.head_separation_deg!r}")
-        if self.exposure_mode not in ("single", "multi"):
+        cams = self.camera
+        if isinstance(cams, (list, tuple)):
+            if not 1 <= len(cams) <= 8:
+                raise ValueError(f"camera: a list of 1 to 8 heads, got {len(cams)}")
+            if self.n_heads is not None and self.n_heads != len(cams):
+                raise ValueError(f"n_heads ({self.n_heads}) must be the number of cameras in the list ({len(cams)})")
+            specs = [as_spec(c) for c in cams]
+        else:
+            specs = [as_spec(cams)]
+            n = 1 if self.n_heads is None else self.n_heads
+            if n not in (1, 2) or isinstance(n, bool):
+                raise ValueError(f"n_heads must be 1 or 2 with one camera (give a list for more), got {self.n_heads!r}")
+            if not (np.isfinite(self.head_separation_deg) and 10.0 <= self.head_separation_deg <= 170.0):
+                raise ValueError(f"head_separation_deg must be in [10, 170] (heads must not overlap or point the same "
+                                 f"way), got {self.head_separation_deg!r}")
+            if n == 2:
+                if specs[0].color:
+                    raise ValueError("n_heads=2 is available for the monochrome cameras only, not a colour (3CMOS) camera")
+                # paper 001's layout: two heads symmetric about body +z, boresights head_separation_deg apart
+                mounted = MultiFovSensor.two_heads(specs[0].camera, self.head_separation_deg).heads
+                specs = [specs[0].with_mounting(c.q_cam_to_body) for c in mounted]
+        if sum(s.color for s in specs) and len(specs) > 1:
+            raise ValueError("a colour (3CMOS) camera runs alone (one head)")
+        # overrides of the specs' own values, applied to every head
+        exp_over = {k: v for k, v in (("mode", self.exposure_mode), ("n_exposures", self.n_exposures),
+                                      ("exposure_s", self.exposure_s), ("single_exposure_s", self.single_exposure_s),
+                                      ("max_exposures", self.max_exposures)) if v is not None}
+        if self.frame_period_s is not None:
+            check_real(self.frame_period_s, "frame_period_s", 0.0, 10.0, lo_open=True)
+            exp_over["frame_rate_hz"] = 1.0 / float(self.frame_period_s)
+        top_over = {k: v for k, v in (("identify_method", self.identify_method), ("matcher", self.matcher),
+                                      ("mag_limit", self.mag_limit)) if v is not None}
+        if exp_over.get("mode") not in (None, "single", "multi"):
             raise ValueError(f"exposure_mode must be 'single' or 'multi', got {self.exposure_mode!r}")
-        n = self.n_exposures
-        if not (n == "adaptive" or (isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= self.max_exposures)):
-            raise ValueError(f"n_exposures must be 'adaptive' or an int in [1, {self.max_exposures}], got {n!r}")
-        if self.identify_method not in IDENTIFY_METHODS:
-            raise ValueError(f"identify_method must be one of {IDENTIFY_METHODS}, got {self.identify_method!r}")
-        if self.matcher not in MATCHERS:
-            raise ValueError(f"matcher must be one of {MATCHERS}, got {self.matcher!r}")
+        out = []
+        for s in specs:
+            e = s.exposure
+            if exp_over:
+                kw = dict(exp_over)
+                period = 1.0 / kw.get("frame_rate_hz", e.frame_rate_hz)
+                tau = kw.get("exposure_s", e.exposure_s)
+                if "max_exposures" not in kw:  # keep what fits in the new frame
+                    kw["max_exposures"] = max(1, min(e.max_exposures, math.floor(period / tau * (1 + 1e-9))))
+                if "single_exposure_s" not in kw and e.single_exposure_s > period:
+                    kw["single_exposure_s"] = tau
+                n = kw.get("n_exposures", e.n_exposures)
+                if n != "adaptive" and "max_exposures" not in exp_over and isinstance(n, (int, np.integer)) \
+                        and not isinstance(n, bool) and n > kw["max_exposures"]:
+                    kw["max_exposures"] = int(n)
+                try:
+                    e = replace(e, **kw)
+                except (TypeError, ValueError) as exc:
+                    raise type(exc)(f"exposure of camera {s.name!r}: {exc}") from None
+            out.append(replace(s, exposure=e, **top_over))
+        specs = out
+        periods = {s.exposure.frame_rate_hz for s in specs}
+        if len(periods) > 1:
+            raise ValueError(f"all heads must have the same frame rate, got {sorted(periods)} Hz")
+        first = specs[0]
+        if len({(s.identify_method, s.matcher, s.mag_limit) for s in specs}) > 1:
+            raise ValueError("all heads must share identify_method, matcher and mag_limit (one catalog, one tracker kind)")
+        resolved = dict(frame_period_s=first.exposure.frame_period_s, exposure_mode=first.exposure.mode,
+                        n_exposures=first.exposure.n_exposures, exposure_s=first.exposure.exposure_s,
+                        single_exposure_s=first.exposure.single_exposure_s, max_exposures=first.exposure.max_exposures,
+                        identify_method=first.identify_method, matcher=first.matcher, mag_limit=first.mag_limit,
+                        n_heads=len(specs), heads=tuple(specs))
+        for k, v in resolved.items():
+            object.__setattr__(self, k, v)
         if self.fidelity not in ("centroid", "pixel"):
             raise ValueError(f"fidelity must be 'centroid' or 'pixel', got {self.fidelity!r}")
         if self.gyro_grade not in GYRO_GRADES:
             raise ValueError(f"gyro_grade must be one of {sorted(GYRO_GRADES)}, got {self.gyro_grade!r}")
+        check_real(self.gyro_rate_hz, "gyro_rate_hz", 1.0, 10000.0)
         steps = self.frame_period_s * self.gyro_rate_hz
         if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
             raise ValueError("the frame period must be a whole number of gyro samples (gyro_rate_hz * frame period)")
+
+    def __reduce__(self):
+        # heads is derived: rebuild from the init fields (their resolved values reproduce the same heads)
+        init = {f.name: getattr(self, f.name) for f in fields(self) if f.init}
+        init["camera"] = [h.to_dict() for h in self.heads]
+        init["n_heads"] = None
+        return (_rebuild_config, (type(self), init))
+
+
+def _rebuild_config(cls, init):
+    return cls(**init)
+
+
+def gyro_rate_sigma_rad_s(spec) -> float:
+    """1σ per-axis error of one gyro rate sample, rad/s: the angle random walk over a sample period
+    (``N √rate_hz``, white noise of the averaged rate), the turn-on bias and the Gauss-Markov bias in quadrature
+    (the tracker takes one sample as the rate at the frame's start)."""
+    return float(math.sqrt(spec.arw_rad_sqrt_s**2 * spec.rate_hz + spec.bias_sigma_rad_s**2 + spec.gm_sigma_rad_s**2))
 
 
 @dataclass
@@ -278,29 +358,26 @@ class StarTrackerUnit:
         if catalog is not None and not isinstance(catalog, StarCatalog):
             raise TypeError(f"catalog must be a startracker.catalog.StarCatalog, got {type(catalog).__name__}")
         self.config = config
-        if config.n_heads == 1:
-            self.heads = [make_head(config.camera)]
-        else:
-            # paper 001's layout: two heads symmetric about body +z, boresights head_separation_deg apart
-            base = make_head(config.camera)
-            mounted = MultiFovSensor.two_heads(base.camera, config.head_separation_deg).heads
-            self.heads = [make_head(config.camera, q_cam_to_body=c.q_cam_to_body) for c in mounted]
+        self.heads = [make_head(spec) for spec in config.heads]
         self.head = self.heads[0]
         self.camera = self.head.camera
-        self.exposure_s = config.exposure_s if config.exposure_s is not None else self.head.exposure_s
+        self.exposure_s = config.exposure_s
         self.catalog = load_catalog(mag_limit=config.mag_limit) if catalog is None else catalog
         self.gyro_spec = gyro_preset(config.gyro_grade, rate_hz=config.gyro_rate_hz)
+        # what the spacecraft really has: the centroid σ of each head's detector, the gyro grade's rate noise
+        gyro_sigma = max(gyro_rate_sigma_rad_s(self.gyro_spec), 1e-7)
         self.trackers = [
-            StarTracker(h.camera, self.catalog, identify_method=config.identify_method, matcher=config.matcher)
-            for h in self.heads
+            StarTracker(h.camera, self.catalog, identify_method=spec.identify_method, matcher=spec.matcher,
+                        centroid_sigma_px=spec.centroid_sigma_px(), frame_period_s=spec.frame_period_s,
+                        max_exposures=spec.exposure.max_exposures, gyro_sigma_rad_s=gyro_sigma,
+                        rate_per_exposure_deg_s=spec.exposure.rate_per_exposure_deg_s,
+                        **spec.tracker.tracker_kwargs())
+            for h, spec in zip(self.heads, config.heads)
         ]
         self.tracker = self.trackers[0]
         self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
         self.gyro_period_s = 1.0 / config.gyro_rate_hz
-        self._single_plan = ExposurePlan(n_exposures=1, exposure_s=config.single_exposure_s,
-                                         frame_period_s=config.frame_period_s,
-                                         start_offset_s=0.5 * (config.frame_period_s - config.single_exposure_s))
-        self._multi_plans: dict[int, ExposurePlan] = {}
+        self._plans: dict[tuple, ExposurePlan] = {}
         self.gyro: Gyro | None = None
         self.faults = None
         self._clear()
@@ -482,24 +559,35 @@ class StarTrackerUnit:
         """Time from each loss of lock to the next lock, s."""
         return list(self._reacquisition_s)
 
-    def _plan_for(self, tracker, camera, omega_hint) -> ExposurePlan:
-        cfg = self.config
+    def _plan_for(self, k: int, omega_hint) -> ExposurePlan:
+        """Head k's exposure plan for the next frame (its spec's exposure, its tracker's request)."""
+        exp = self.config.heads[k].exposure
+        tracker = self.trackers[k]
         requested = tracker.requested_n_exposures  # a computed property: evaluate it once
-        if cfg.exposure_mode == "single" or requested == 1:
+        if exp.mode == "single" or requested == 1:
             # lost-in-space needs one sharp spot per star: a single exposure centred in the frame
-            return self._single_plan
-        if cfg.n_exposures == "adaptive":
+            key = (1, exp.single_exposure_s, True)
+            plan = self._plans.get(key)
+            if plan is None:
+                plan = self._plans[key] = ExposurePlan(
+                    n_exposures=1, exposure_s=exp.single_exposure_s, frame_period_s=exp.frame_period_s,
+                    start_offset_s=0.5 * (exp.frame_period_s - exp.single_exposure_s))
+            return plan
+        if exp.n_exposures == "adaptive":
             # N is what the tracker can separate given its prediction (requested_n_exposures) and what the detector
             # can separate given the smear (the no-overlap rule of the exposure plan): the smaller of the two
             rate = np.zeros(3) if omega_hint is None else omega_hint
-            n_img = choose_n_exposures(rate, camera, cfg.frame_period_s, self.exposure_s, n_max=cfg.max_exposures)
+            n_img = choose_n_exposures(rate, self.heads[k].camera, exp.frame_period_s, exp.exposure_s,
+                                       psf_sigma_px=self.heads[k].sensor_model.sigma_px, n_max=exp.max_exposures,
+                                       min_gap_sigma=exp.min_gap_sigma)
             n = max(1, min(n_img, requested))
         else:
-            n = int(cfg.n_exposures)
-        plan = self._multi_plans.get(n)
+            n = int(exp.n_exposures)
+        key = (n, exp.exposure_s, False)
+        plan = self._plans.get(key)
         if plan is None:  # plans are frozen: each N is built and validated once
-            plan = self._multi_plans[n] = ExposurePlan(n_exposures=n, exposure_s=self.exposure_s,
-                                                       frame_period_s=cfg.frame_period_s)
+            plan = self._plans[key] = ExposurePlan(n_exposures=n, exposure_s=exp.exposure_s,
+                                                   frame_period_s=exp.frame_period_s)
         return plan
 
     def _inertial_prior(self, tracker, t_frame: float):
@@ -550,7 +638,7 @@ class StarTrackerUnit:
         prev_mode = self.tracker_mode
         samples, n_matched, latency, n_exp, frames = [], 0, 0.0, 0, []
         for k, (head, tracker) in enumerate(zip(self.heads, self.trackers)):
-            plan = self._plan_for(tracker, head.camera, omega_hint)
+            plan = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
             det, scene = head.detections(self.catalog, truth, plan, t_frame, rng, cfg.fidelity, bodies)
             if len(det) and np.any(det.intensity <= 0):
@@ -643,7 +731,7 @@ class EstimateHistory:
     samples: list
 
 
-def run_star_tracker(t_s, q_body_to_icrs, *, omega_gyro=None, camera: str = "paper000", rng=None,
+def run_star_tracker(t_s, q_body_to_icrs, *, omega_gyro=None, camera="paper000", rng=None,
                      catalog: StarCatalog | None = None, **options) -> EstimateHistory:
     """Run the star tracker and the filter over a trajectory of one's own: truth in, estimate history out.
 
@@ -660,8 +748,8 @@ def run_star_tracker(t_s, q_body_to_icrs, *, omega_gyro=None, camera: str = "pap
         Measured gyro rates over ``(t_s[k-1], t_s[k]]``, rad/s, for uniformly spaced ``t_s`` (the gyro rate is
         ``1 / (t_s[1] - t_s[0])``). Default: the unit's gyro (``gyro_grade``, ``gyro_rate_hz``) samples the
         trajectory, resampled at the gyro's instants.
-    camera : str
-        Head camera, one of :data:`HEAD_CAMERAS`.
+    camera : str, StarTrackerSpec, dict or list of them
+        Head camera(s): one of :data:`HEAD_CAMERAS`, a :class:`startracker.spec.StarTrackerSpec` or its dict.
     rng : numpy.random.Generator, optional
         Every noise draw (default ``numpy.random.default_rng(0)``).
     catalog : startracker.catalog.StarCatalog, optional

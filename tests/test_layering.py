@@ -39,13 +39,14 @@ def test_import_direction(package, forbidden):
 #   truth     scene
 #   pixels    imaging (detector, background, spots, render) -> centroid (extraction, fidelity)
 #   solving   identify, track (siblings: neither imports the other, nor pixels)
+#   spec      spec (a star tracker described as data: optics, detector, exposure; reads the centroid theory)
 #   tracker   sensor (identify + track), head (camera heads: pixels, centroid, color)
 #   subsystems  color (3CMOS, paper 004), multifov (distributed FoVs, paper 001): they use the rooms
 #             below; only sensor-level code (head, sensor) may import them, and neither imports the other
 #   unit      onboard (heads + trackers + gyro + EKF observing a truth history: what the env runs)
 #   helpers   simulation (synthetic frames for tests and benchmarks): no room imports it
 ABOVE_DATA = {"scene", "imaging", "centroid", "identify", "track", "sensor", "head", "color", "multifov", "simulation",
-              "onboard"}
+              "onboard", "spec"}
 SUBSYSTEMS = {"color", "multifov"}
 SENSOR_LEVEL = {"head", "sensor", "onboard"}
 FORBIDDEN = {
@@ -56,6 +57,7 @@ FORBIDDEN = {
     "centroid": {"identify", "track", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,
     "identify": {"imaging", "centroid", "track", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,
     "track": {"imaging", "centroid", "identify", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,
+    "spec": {"identify", "track", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,
     "sensor": {"head", "simulation", "onboard"},
     "head": {"sensor", "simulation", "onboard"},
     "color": {"multifov", "sensor", "head", "simulation", "onboard"},

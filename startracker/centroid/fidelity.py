@@ -54,6 +54,7 @@ __all__ = [
     "calibrate_error_model",
     "candidate_pairs",
     "grid_scene",
+    "predicted_centroid_sigma_px",
 ]
 
 
@@ -102,6 +103,13 @@ DEFAULT_ERROR_MODELS = {
     ("paper000", "gaussian"): CentroidErrorModel(1.425, 3.417, 0.001, 0.001, 0.5, "gaussian"),
     ("paper000_cmos", "com"): CentroidErrorModel(1.200, 0.542, 1.494, 0.182, 0.5, "com"),
     ("paper000_cmos", "gaussian"): CentroidErrorModel(1.200, 12.367, 0.583, 0.345, 0.5, "gaussian"),
+    # each preset's detector on its own camera at its own exposure (startracker.spec.preset_spec):
+    # calibrate_error_model(spec.detector, np.random.default_rng(2025), camera=spec.camera,
+    #                       exposure_s=spec.exposure.exposure_s, n_frames=16)
+    ("zy3", "com"): CentroidErrorModel(1.025, 1.456, 0.905, 0.110, 0.5, "com"),
+    ("paper003", "com"): CentroidErrorModel(1.060, 0.818, 0.983, 0.125, 0.5, "com"),
+    ("paper004", "com"): CentroidErrorModel(1.085, 0.539, 1.762, 0.201, 0.5, "com"),
+    ("paper004_3cmos", "com"): CentroidErrorModel(1.085, 0.539, 1.762, 0.201, 0.5, "com"),
 }
 
 
@@ -465,3 +473,47 @@ def calibrate_error_model(
         coef, _ = nnls(X * w[:, None], y * w)
         coef = np.maximum(coef, 1e-3)
     return CentroidErrorModel(pf, float(coef[0]), float(coef[1]), float(coef[2]), min_log_ratio, method)
+
+
+def predicted_centroid_sigma_px(model: SensorModel, camera, vmag, exposure_s: float, *, smear_px: float = 0.0,
+                                k_sigma: float = 5.0, method: str = "com", error_model: CentroidErrorModel | None = None):
+    """Centroid error and detection probability of single spots, from the calibrated centroid-fidelity theory.
+
+    The spots sit at the principal point of ``camera`` (quiet sky, no bright body), one exposure of
+    ``exposure_s`` seconds, streaked by ``smear_px``.
+
+    Parameters
+    ----------
+    model : SensorModel
+    camera : startracker.optics.Camera
+    vmag : array_like, shape (K,)
+        V magnitudes (B−V = 0).
+    exposure_s : float
+        Exposure time, s.
+    smear_px : float
+        Streak length, px.
+    k_sigma : float
+    method : {"com", "gaussian"}
+    error_model : CentroidErrorModel, optional
+        Default :func:`default_error_model` of ``model``.
+
+    Returns
+    -------
+    sigma_px : ndarray, shape (K,)
+        Per-axis 1σ centroid error, sqrt of the mean of the along- and cross-motion variances, px.
+    p_detect : ndarray, shape (K,)
+        Detection probability.
+    """
+    from startracker.scene import ExposurePlan, scene_from_tracks
+
+    if not isinstance(model, SensorModel):
+        raise TypeError(f"model must be a SensorModel, got {type(model).__name__}")
+    v = as_float_array(vmag, "vmag", ndim=1)
+    tau = check_positive(exposure_s, "exposure_s")
+    smear = check_positive(smear_px, "smear_px", allow_zero=True)
+    err = default_error_model(model, method) if error_model is None else error_model
+    plan = ExposurePlan(1, tau, frame_period_s=tau)
+    xy = np.tile(np.asarray(camera.principal_point, dtype=np.float64), (len(v), 1))
+    vel = np.tile([smear / tau, 0.0], (len(v), 1))
+    th = _theory_for_scene(scene_from_tracks(camera, plan, xy, v, vel), model, check_k_sigma(k_sigma), err)
+    return np.sqrt(0.5 * (th["var_along"] + th["var_cross"])), th["p_det"]

@@ -14,7 +14,6 @@ from startracker.catalog import StarCatalog
 from startracker.color.camera import BV_RANGE, DEFAULT_RESPONSE, ChannelResponse, ColorCamera
 from startracker.imaging import FalseObjects, SensorModel, draw_false_objects, render_frame
 from startracker.optics import Camera
-from startracker.photometry import Photometry
 from startracker.scene import ExposurePlan, Scene, compute_scene
 
 __all__ = [
@@ -33,22 +32,8 @@ def paper004_sensor_model(**overrides) -> SensorModel:
     share :meth:`ChannelResponse.electrons` of a star's light (:func:`channel_scenes`), so
     ``color_term_per_bv`` must stay 0. Keyword arguments override any :class:`SensorModel` field.
     """
-    kw = dict(
-        psf_sigma_px=1.0,
-        photometry=Photometry(aperture_diameter_mm=17.9, bandwidth_nm=280.0, transmission=0.8, quantum_efficiency=0.65),
-        intensifier_gain=1.0,
-        excess_noise_factor=1.0,
-        sky_mag_per_arcsec2=22.5,
-        dark_current_e_per_s=5.0,
-        read_noise_e=2.5,
-        full_well_e=10500.0,
-        adc_bits=12,
-        gain_e_per_dn=2.6,
-        bias_dn=64.0,
-        name="paper004_3cmos",
-    )
-    kw.update(overrides)
-    return SensorModel(**kw)
+    # the values and their sources: SensorModel.preset("paper004_3cmos") (startracker.imaging.detector)
+    return replace(SensorModel.preset("paper004_3cmos"), **overrides) if overrides else SensorModel.preset("paper004_3cmos")
 
 
 def channel_scenes(color_camera: ColorCamera, catalog: StarCatalog, attitude, plan: ExposurePlan,

@@ -49,6 +49,7 @@ from startracker.imaging.background import (
 )
 from startracker.imaging.detector import (
     DEFAULT_STRAY_LIGHT,
+    DETECTOR_PRESETS,
     SensorModel,
     StrayLightResponse,
     fixed_pattern,
@@ -79,6 +80,7 @@ __all__ = [
     "SensorModel",
     "StrayLightResponse",
     "DEFAULT_STRAY_LIGHT",
+    "DETECTOR_PRESETS",
     "fixed_pattern",
     "BackgroundField",
     "FalseObjects",

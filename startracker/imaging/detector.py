@@ -21,6 +21,7 @@ __all__ = [
     "SensorModel",
     "StrayLightResponse",
     "DEFAULT_STRAY_LIGHT",
+    "DETECTOR_PRESETS",
     "fixed_pattern",
 ]
 
@@ -75,6 +76,60 @@ DEFAULT_STRAY_LIGHT = MappingProxyType(
         "earth": StrayLightResponse(20.0, 50.0, 3.0, 0.6),
     }
 )
+
+
+_PAPER004_CMOS = MappingProxyType(dict(  # paper 004 (comment below)
+        psf_sigma_px=1.0,
+        photometry=dict(aperture_diameter_mm=17.9, bandwidth_nm=280.0, transmission=0.8, quantum_efficiency=0.65),
+        intensifier_gain=1.0, excess_noise_factor=1.0,
+        dark_current_e_per_s=5.0, read_noise_e=2.5, full_well_e=10500.0, adc_bits=12, gain_e_per_dn=2.6,
+    ))
+
+# Detector presets: SensorModel fields (the rest keep their defaults, paper 000's values). Where a paper is silent
+# the value is an assumption, said so.
+DETECTOR_PRESETS: Mapping[str, Mapping] = MappingProxyType({
+    # Paper 000, Table 2 gives only the optics (20°x20°, f = 31.94 mm, 2048², 5.5 µm). Its MEIA tracker is
+    # intensified (refs. 9, 22): assumed an image intensifier of gain 40 (excess noise 1.3, splash 0.9 px) on a
+    # CMOS with 5 e- read noise, 20 e-/s dark, 15 ke- full well, 12 bit, 2 e-/DN; f/1.2 (26.6 mm pupil),
+    # QE 0.25 of the photocathode over 400 nm; PSF 1.2 px (the SensorModel defaults).
+    "paper000": {},
+    "paper000_cmos": dict(
+        psf_sigma_px=1.0,
+        photometry=dict(aperture_diameter_mm=26.6, bandwidth_nm=400.0, transmission=0.8, quantum_efficiency=0.6),
+        intensifier_gain=1.0, excess_noise_factor=1.0, read_noise_e=3.0, full_well_e=10000.0, gain_e_per_dn=2.5,
+    ),
+    # Paper 002, Table 1: ZY-3's APS, 1024x1024, 15 µm, f = 43.3 mm, exposure 125-500 ms, detection threshold
+    # V = 6.5, catalog <= 5.5. The paper names no part; that format is the STAR1000 APS's, and its datasheet
+    # values are assumed: read noise 47 e-, dark current 3130 e-/s (25 °C), full well 135 ke-, QE x fill factor
+    # 0.2 averaged over 400 nm, PRNU 1 %. Assumed a 12-bit ADC over the full well (33 e-/DN) and a defocused
+    # PSF of σ = 0.8 px (15 µm pixels). The aperture is not given: 34 mm (f/1.27) puts the 50 % detection
+    # point of a 125 ms exposure at V = 6.5, the stated threshold (tests/test_spec.py checks it).
+    "zy3": dict(
+        psf_sigma_px=0.8,
+        photometry=dict(aperture_diameter_mm=34.0, bandwidth_nm=400.0, transmission=0.8, quantum_efficiency=0.2),
+        intensifier_gain=1.0, excess_noise_factor=1.0,
+        dark_current_e_per_s=3130.0, read_noise_e=47.0, full_well_e=135000.0, adc_bits=12, gain_e_per_dn=33.0,
+        hot_pixel_dark_e_per_s=(2.0e4, 2.0e5),
+    ),
+    # Paper 003 gives the 16°x16° field and a CCD ("CCD plane", N_x x N_y pixels) and no detector data.
+    # Assumed (as optics.py's camera) 1024², 15 µm, and a frame-transfer CCD: read noise 10 e-, dark 50 e-/s,
+    # full well 100 ke-, QE 0.5 over 400 nm, 14 bit at 6.1 e-/DN, PSF σ 0.8 px; the aperture (15 mm) puts the
+    # 50 % detection point of a 50 ms exposure at V = 6.5, half a magnitude beyond the paper's V <= 6 catalog.
+    "paper003": dict(
+        psf_sigma_px=0.8,
+        photometry=dict(aperture_diameter_mm=15.0, bandwidth_nm=400.0, transmission=0.8, quantum_efficiency=0.5),
+        intensifier_gain=1.0, excess_noise_factor=1.0,
+        dark_current_e_per_s=50.0, read_noise_e=10.0, full_well_e=100000.0, adc_bits=14, gain_e_per_dn=6.1,
+    ),
+    # Paper 004, §4.1 and Table 1: 2064x1544, 3.45 µm, f = 25 mm; one plain CMOS receiving the whole band (no
+    # prism). The paper names no detector: a Sony IMX265-class global-shutter CMOS is assumed (read noise
+    # 2.5 e-, full well 10.5 ke-, 12 bit at 2.6 e-/DN, dark 5 e-/s), f/1.4 (17.9 mm pupil), QE 0.65 over
+    # 280 nm with transmission 0.8, PSF σ 1.0 px.
+    "paper004": _PAPER004_CMOS,
+    # Paper 004's 3CMOS head: three detectors as "paper004" behind the prism; the photometry describes the three
+    # channels together (each receives its share, startracker.color.channels), so its colour term stays 0.
+    "paper004_3cmos": _PAPER004_CMOS,
+})
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,23 +252,26 @@ class SensorModel:
     # ------------------------------------------------------------------ presets
     @classmethod
     def preset(cls, name: str) -> "SensorModel":
-        """``"paper000"``: intensified CMOS behind paper 000's optics (the MEIA tracker), the default.
-        ``"paper000_cmos"``: the same optics on a plain CMOS (QE 0.6, 3 e⁻ read noise), for single
-        long exposures."""
-        if name == "paper000":
-            return cls()
-        if name == "paper000_cmos":
-            return cls(
-                psf_sigma_px=1.0,
-                photometry=Photometry(aperture_diameter_mm=26.6, bandwidth_nm=400.0, transmission=0.8, quantum_efficiency=0.6),
-                intensifier_gain=1.0,
-                excess_noise_factor=1.0,
-                read_noise_e=3.0,
-                full_well_e=10000.0,
-                gain_e_per_dn=2.5,
-                name="paper000_cmos",
-            )
-        raise ValueError(f"preset name must be 'paper000' or 'paper000_cmos', got {name!r}")
+        """The detector of one of the papers' star trackers (names :data:`DETECTOR_PRESETS`).
+
+        Each field's source is in :data:`DETECTOR_PRESETS`' comments: the paper's table where it gives the
+        value, else a stated assumption (a named detector of the format the paper gives, or a choice that
+        reproduces a figure the paper states, such as ZY-3's detection threshold).
+
+        * ``"paper000"``: intensified CMOS behind paper 000's optics (the MEIA tracker), the default.
+        * ``"paper000_cmos"``: the same optics on a plain CMOS (QE 0.6, 3 e⁻ read noise), for single long
+          exposures.
+        * ``"zy3"``: ZY-3's APS (paper 002, Table 1: 1024², 15 µm, 125-500 ms, threshold V = 6.5).
+        * ``"paper003"``: paper 003's 16°×16° tracker (a CCD; the paper gives no detector data).
+        * ``"paper004"``: one of paper 004's CMOS detectors (3.45 µm, 2064×1544) taking the whole band.
+        * ``"paper004_3cmos"``: paper 004's three prism channels (photometry of the three together).
+        """
+        if name not in DETECTOR_PRESETS:
+            raise ValueError(f"preset name must be one of {tuple(DETECTOR_PRESETS)}, got {name!r}")
+        kw = dict(DETECTOR_PRESETS[name])
+        if "photometry" in kw:
+            kw["photometry"] = Photometry(**kw["photometry"])
+        return cls(**kw, name=name)
 
     # ------------------------------------------------------------------ derived
     @property

@@ -187,9 +187,8 @@ class AgileSlewEnv(gym.Env):
 
         self.task = task
         if control_period_s is None:
-            # 0.1 s, or one frame when the camera's frames are longer (ZY-3: 4 Hz)
-            period = 1.0 / float(frame_rate_hz) if frame_rate_hz is not None else UnitConfig(camera=camera).frame_period_s
-            control_period_s = max(0.1, period)
+            # 0.1 s, or one frame when the camera's own frames are longer (ZY-3: 4 Hz)
+            control_period_s = 0.1 if frame_rate_hz is not None else max(0.1, UnitConfig(camera=camera).frame_period_s)
         self.control_period_s = float(control_period_s)
         self.slew_angle_deg_range = (lo, hi)
         self.settle_tolerance_rad = np.radians(settle_tolerance_deg)

@@ -193,8 +193,6 @@ class UnitConfig:
         if len(periods) > 1:
             raise ValueError(f"all heads must have the same frame rate, got {sorted(periods)} Hz")
         first = specs[0]
-        if len({(s.identify_method, s.matcher, s.mag_limit) for s in specs}) > 1:
-            raise ValueError("all heads must share identify_method, matcher and mag_limit (one catalog, one tracker kind)")
         resolved = dict(frame_period_s=first.exposure.frame_period_s, exposure_mode=first.exposure.mode,
                         n_exposures=first.exposure.n_exposures, exposure_s=first.exposure.exposure_s,
                         single_exposure_s=first.exposure.single_exposure_s, max_exposures=first.exposure.max_exposures,
@@ -328,7 +326,7 @@ class StarTrackerUnit:
     config : UnitConfig, optional
         Default ``UnitConfig()``.
     catalog : startracker.catalog.StarCatalog, optional
-        Default ``load_catalog(mag_limit=config.mag_limit)``.
+        Every head's catalog; default ``load_catalog(mag_limit=...)`` at each head's spec's limit.
 
     Attributes
     ----------
@@ -362,17 +360,23 @@ class StarTrackerUnit:
         self.head = self.heads[0]
         self.camera = self.head.camera
         self.exposure_s = config.exposure_s
-        self.catalog = load_catalog(mag_limit=config.mag_limit) if catalog is None else catalog
+        # one catalog per catalog limit among the heads (the first head's is ``catalog``)
+        by_limit = {}
+        for spec in config.heads:
+            if spec.mag_limit not in by_limit:
+                by_limit[spec.mag_limit] = load_catalog(mag_limit=spec.mag_limit) if catalog is None else catalog
+        self.catalogs = [by_limit[spec.mag_limit] for spec in config.heads]
+        self.catalog = self.catalogs[0]
         self.gyro_spec = gyro_preset(config.gyro_grade, rate_hz=config.gyro_rate_hz)
         # what the spacecraft really has: the centroid σ of each head's detector, the gyro grade's rate noise
         gyro_sigma = max(gyro_rate_sigma_rad_s(self.gyro_spec), 1e-7)
         self.trackers = [
-            StarTracker(h.camera, self.catalog, identify_method=spec.identify_method, matcher=spec.matcher,
+            StarTracker(h.camera, cat, identify_method=spec.identify_method, matcher=spec.matcher,
                         centroid_sigma_px=spec.centroid_sigma_px(), frame_period_s=spec.frame_period_s,
                         max_exposures=spec.exposure.max_exposures, gyro_sigma_rad_s=gyro_sigma,
                         rate_per_exposure_deg_s=spec.exposure.rate_per_exposure_deg_s,
                         **spec.tracker.tracker_kwargs())
-            for h, spec in zip(self.heads, config.heads)
+            for h, spec, cat in zip(self.heads, config.heads, self.catalogs)
         ]
         self.tracker = self.trackers[0]
         self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
@@ -640,7 +644,7 @@ class StarTrackerUnit:
         for k, (head, tracker) in enumerate(zip(self.heads, self.trackers)):
             plan = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
-            det, scene = head.detections(self.catalog, truth, plan, t_frame, rng, cfg.fidelity, bodies)
+            det, scene = head.detections(self.catalogs[k], truth, plan, t_frame, rng, cfg.fidelity, bodies)
             if len(det) and np.any(det.intensity <= 0):
                 det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
             if faults:

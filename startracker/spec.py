@@ -173,6 +173,10 @@ class TrackerSpec:
         Largest plausible body rate, °/s (> 0).
     coast_max_s : float
         How long a lost lock may be recovered by prediction, s (>= 0).
+    sigma_rate_deg_s : float
+        The detector's centroid σ (``centroid_sigma_px=None``) is taken over still spots and spots streaked at
+        this body rate, °/s (>= 0; default half the env's 20°/s rate limit): a streak's centroid is much less
+        certain along it.
     """
 
     centroid_sigma_px: float | None = None
@@ -188,6 +192,7 @@ class TrackerSpec:
     accel_sigma_rad_s2: float = 0.02
     max_rate_deg_s: float = 30.0
     coast_max_s: float = 1.0
+    sigma_rate_deg_s: float = 10.0
 
     def __post_init__(self):
         if self.centroid_sigma_px is not None:
@@ -205,10 +210,11 @@ class TrackerSpec:
         check_real(self.accel_sigma_rad_s2, "accel_sigma_rad_s2", 0.0)
         check_real(self.max_rate_deg_s, "max_rate_deg_s", 0.0, 360.0, lo_open=True)
         check_real(self.coast_max_s, "coast_max_s", 0.0)
+        check_real(self.sigma_rate_deg_s, "sigma_rate_deg_s", 0.0, 360.0)
 
     def tracker_kwargs(self) -> dict:
         """Keyword arguments of :class:`startracker.sensor.StarTracker` (without the centroid σ)."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "centroid_sigma_px"}
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("centroid_sigma_px", "sigma_rate_deg_s")}
 
 
 # ------------------------------------------------------------------------------------------ dict forms
@@ -366,10 +372,11 @@ class StarTrackerSpec:
         """The tracker's per-axis centroid σ, px: ``tracker.centroid_sigma_px`` if given, else the detector's.
 
         The detector's is the RMS of the predicted centroid error (:func:`startracker.centroid.fidelity.
-        predicted_centroid_sigma_px`, still spots of a multi-exposure exposure) over the stars the tracker will
+        predicted_centroid_sigma_px`, spots of one multi-exposure exposure) over the stars the tracker will
         see: one per 0.1 mag bin up to ``mag_limit``, weighted by the sky's star counts (×10^0.6 per
-        magnitude) and by their detection probability; at least 0.05 px (what the catalog and the
-        distortion model leave).
+        magnitude) and by their detection probability, still and streaked at ``tracker.sigma_rate_deg_s``
+        across the boresight (equal shares); at least 0.05 px (what the catalog and the distortion model
+        leave).
         """
         if self.tracker.centroid_sigma_px is not None:
             return float(self.tracker.centroid_sigma_px)
@@ -449,14 +456,20 @@ _SIGMA_CACHE: dict = {}
 
 def _detector_sigma_px(spec: StarTrackerSpec) -> float:
     key = (repr(detector_to_dict(spec.detector)), repr(camera_to_dict(spec.camera.with_mounting((1, 0, 0, 0)))),
-           spec.exposure.exposure_s, spec.mag_limit)
+           spec.exposure.exposure_s, spec.mag_limit, spec.tracker.sigma_rate_deg_s)
     hit = _SIGMA_CACHE.get(key)
     if hit is not None:
         return hit
     vmag = np.arange(-1.0, spec.mag_limit + 1e-9, 0.1)
-    sigma, p_det = predicted_centroid_sigma_px(spec.detector, spec.camera, vmag, spec.exposure.exposure_s)
-    w = 10.0 ** (0.6 * vmag) * p_det
-    s = float(max(math.sqrt(np.sum(w * sigma**2) / np.sum(w)), 0.05)) if np.sum(w) > 0 else 1.0
+    tau = spec.exposure.exposure_s
+    num = den = 0.0
+    for rate_deg_s in (0.0, spec.tracker.sigma_rate_deg_s):
+        smear_px = math.radians(rate_deg_s) * spec.camera.focal_length_px * tau
+        sigma, p_det = predicted_centroid_sigma_px(spec.detector, spec.camera, vmag, tau, smear_px=smear_px)
+        w = 10.0 ** (0.6 * vmag) * p_det
+        num += float(np.sum(w * sigma**2))
+        den += float(np.sum(w))
+    s = float(max(math.sqrt(num / den), 0.05)) if den > 0 else 1.0
     _SIGMA_CACHE[key] = s
     return s
 

@@ -102,22 +102,22 @@ DETECTOR_PRESETS: Mapping[str, Mapping] = MappingProxyType({
     # V = 6.5, catalog <= 5.5. The paper names no part; that format is the STAR1000 APS's, and its datasheet
     # values are assumed: read noise 47 e-, dark current 3130 e-/s (25 °C), full well 135 ke-, QE x fill factor
     # 0.2 averaged over 400 nm, PRNU 1 %. Assumed a 12-bit ADC over the full well (33 e-/DN) and a defocused
-    # PSF of σ = 0.8 px (15 µm pixels). The aperture is not given: 34 mm (f/1.27) puts the 50 % detection
+    # PSF of σ = 0.8 px (15 µm pixels). The aperture is not given: 27 mm (f/1.6) puts the 50 % detection
     # point of a 125 ms exposure at V = 6.5, the stated threshold (tests/test_spec.py checks it).
     "zy3": dict(
         psf_sigma_px=0.8,
-        photometry=dict(aperture_diameter_mm=34.0, bandwidth_nm=400.0, transmission=0.8, quantum_efficiency=0.2),
+        photometry=dict(aperture_diameter_mm=27.0, bandwidth_nm=400.0, transmission=0.8, quantum_efficiency=0.2),
         intensifier_gain=1.0, excess_noise_factor=1.0,
         dark_current_e_per_s=3130.0, read_noise_e=47.0, full_well_e=135000.0, adc_bits=12, gain_e_per_dn=33.0,
         hot_pixel_dark_e_per_s=(2.0e4, 2.0e5),
     ),
     # Paper 003 gives the 16°x16° field and a CCD ("CCD plane", N_x x N_y pixels) and no detector data.
     # Assumed (as optics.py's camera) 1024², 15 µm, and a frame-transfer CCD: read noise 10 e-, dark 50 e-/s,
-    # full well 100 ke-, QE 0.5 over 400 nm, 14 bit at 6.1 e-/DN, PSF σ 0.8 px; the aperture (15 mm) puts the
+    # full well 100 ke-, QE 0.5 over 400 nm, 14 bit at 6.1 e-/DN, PSF σ 0.8 px; the aperture (11.8 mm) puts the
     # 50 % detection point of a 50 ms exposure at V = 6.5, half a magnitude beyond the paper's V <= 6 catalog.
     "paper003": dict(
         psf_sigma_px=0.8,
-        photometry=dict(aperture_diameter_mm=15.0, bandwidth_nm=400.0, transmission=0.8, quantum_efficiency=0.5),
+        photometry=dict(aperture_diameter_mm=11.8, bandwidth_nm=400.0, transmission=0.8, quantum_efficiency=0.5),
         intensifier_gain=1.0, excess_noise_factor=1.0,
         dark_current_e_per_s=50.0, read_noise_e=10.0, full_well_e=100000.0, adc_bits=14, gain_e_per_dn=6.1,
     ),

@@ -33,8 +33,11 @@ class AgileSlewEnv(gym.Env):
     * a gyro (bias, Gauss-Markov drift, angle and rate random walk, scale factor, saturation);
     * a multiplicative EKF (filterpy) that fuses every attitude sample at its exposure timestamp with the gyro.
 
-    ``info`` reports what the star tracker achieved: the attitude update rate and the star-matching latency (wall
-    clock of prediction and matching), as well as the true and estimated attitudes.
+    ``info`` reports what the star tracker achieved: the attitude update rate (``update_rate_hz``: distinct attitude
+    instants per second, two heads exposed at once count once; ``update_rate_hz_per_head``) and the star-matching
+    latency (``matching_latency_ms``: wall clock of one frame's prediction, matching, grouping by instant, N Wahba
+    solutions and lock tests, summed over the heads, lost-in-space identification apart;
+    ``matching_latency_ms_per_head``, ``latency_breakdown_ms``), as well as the true and estimated attitudes.
 
     The task ``"hold"`` (id ``startracker/AttitudeHold-v0``) keeps an inertial target under a disturbance torque.
 
@@ -400,7 +403,10 @@ class AgileSlewEnv(gym.Env):
             "attitude_error_arcsec": math.degrees(float(rk.quat_angle_between(q_true, est.q_body_to_icrs))) * 3600.0,
             "pointing_error_deg": math.degrees(pointing_error_rad),
             "update_rate_hz": stats["update_rate_hz"],
+            "update_rate_hz_per_head": list(stats["update_rate_hz_per_head"]),
             "matching_latency_ms": stats["matching_latency_ms"],
+            "matching_latency_ms_per_head": list(stats["matching_latency_ms_per_head"]),
+            "latency_breakdown_ms": dict(stats["latency_breakdown_ms"]),
             "tracker_mode": self.avionics.tracker_mode,
             "n_stars": stats["n_stars"],
             "exposures_per_frame": stats["exposures_per_frame"],

@@ -32,6 +32,7 @@ span of truth) is one object, and :func:`run_star_tracker` is its thin driver.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -304,10 +305,13 @@ def _count_wrong(t_true, q_meas, cov, times_s, q_body_to_icrs) -> int:
     return n_wrong
 
 
-def _empty_stats() -> dict:
+def _empty_stats(n_heads: int = 1) -> dict:
     return dict(
         update_rate_hz=0.0,
+        update_rate_hz_per_head=[0.0] * n_heads,
         matching_latency_ms=0.0,
+        matching_latency_ms_per_head=[0.0] * n_heads,
+        latency_breakdown_ms=dict(predict_match=0.0, group_solve_test=0.0, identify=0.0),
         n_stars=0,
         exposures_per_frame=0,
         n_attitude_samples=0,
@@ -340,9 +344,14 @@ class StarTrackerUnit:
     tracker_mode : str
         "track" while any head tracks, else "acquire" if any acquires, else "lost".
     last_stats : dict
-        Figures of the last frame (:meth:`process_frame`) or span (:meth:`observe`): ``update_rate_hz``,
-        ``matching_latency_ms``, ``n_stars``, ``exposures_per_frame``, ``n_attitude_samples``, ``lost_lock_events``,
-        ``n_wrong_samples``, ``filter_restarts``, ``faults_active``.
+        Figures of the last frame (:meth:`process_frame`) or span (:meth:`observe`): ``update_rate_hz`` (distinct
+        attitude instants per second over the span: two heads exposed at the same instant count once),
+        ``update_rate_hz_per_head`` (each head's samples per second), ``matching_latency_ms`` (wall clock of the
+        trackers' work on one frame, summed over the heads, lost-in-space identification excluded: prediction,
+        matching, grouping by instant, the N Wahba solutions and the lock tests; mean over the span's frames),
+        ``matching_latency_ms_per_head``, ``latency_breakdown_ms`` (``predict_match``, ``group_solve_test`` and,
+        apart, ``identify``, per frame summed over the heads), ``n_stars``, ``exposures_per_frame``,
+        ``n_attitude_samples``, ``lost_lock_events``, ``n_wrong_samples``, ``filter_restarts``, ``faults_active``.
     last_time_error_s : float
         Timestamp error injected into the last frame (fault hooks), s.
     last_samples : list of startracker.sensor.AttitudeSample
@@ -391,10 +400,11 @@ class StarTrackerUnit:
         self.ekf: AttitudeEKF | None = None
         self.head_modes = ["lost"] * len(self.heads)
         self.tracker_mode = "lost"
-        self.last_stats = _empty_stats()
+        self.last_stats = _empty_stats(len(self.heads))
         self.last_time_error_s = 0.0
         self.last_samples: list[AttitudeSample] = []
         self._omega_gyro = np.zeros(3)
+        self._frame_head_samples = np.zeros(len(self.heads))
         self._last_frame = None
         self._lost_events = 0
         self._n_wrong = 0
@@ -472,8 +482,11 @@ class StarTrackerUnit:
         self._omega_gyro = omega_meas[-1].copy()
 
         samples = []
-        stats = _empty_stats()
+        stats = _empty_stats(len(self.heads))
         lat = []
+        per_head_n = np.zeros(len(self.heads))
+        per_head_lat = np.zeros(len(self.heads))
+        breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
         offsets = []
         for f in range(n_frames):
             tf = t0 + f * self.config.frame_period_s
@@ -483,12 +496,22 @@ class StarTrackerUnit:
             samples.extend(new)
             offsets.extend([self.last_time_error_s] * len(new))
             lat.append(self.last_stats["matching_latency_ms"])
+            per_head_n += self._frame_head_samples
+            per_head_lat += self.last_stats["matching_latency_ms_per_head"]
+            for key, v in self.last_stats["latency_breakdown_ms"].items():
+                breakdown[key] += v
             stats["n_stars"] = self.last_stats["n_stars"]
             stats["exposures_per_frame"] = self.last_stats["exposures_per_frame"]
         stats["matching_latency_ms"] = sum(lat) / len(lat) if lat else 0.0
+        if n_frames:
+            stats["matching_latency_ms_per_head"] = (per_head_lat / n_frames).tolist()
+            stats["latency_breakdown_ms"] = {k: v / n_frames for k, v in breakdown.items()}
         stats["filter_restarts"] = self._filter_resets
         stats["n_attitude_samples"] = len(samples)
-        stats["update_rate_hz"] = len(samples) / duration_s
+        # distinct attitude instants: heads exposed at the same instant add samples, not updates
+        n_instants = len(np.unique(np.round(np.array([smp.t_s for smp in samples]) * 1e6))) if samples else 0
+        stats["update_rate_hz"] = n_instants / duration_s
+        stats["update_rate_hz_per_head"] = (per_head_n / duration_s).tolist()
         stats["lost_lock_events"] = self._lost_events
         if samples:  # the samples' arrays, built once for the wrong-sample count and the filter
             arrays = _sample_arrays(samples)
@@ -627,8 +650,9 @@ class StarTrackerUnit:
         t_mid = t_frame + 0.5 * cfg.frame_period_s
         self.last_time_error_s = 0.0
         faults = self.faults
+        self._frame_head_samples = np.zeros(len(self.heads))
         if faults and faults.frame_dropped(t_mid):
-            self.last_stats = dict(_empty_stats(), exposures_per_frame=0)
+            self.last_stats = dict(_empty_stats(len(self.heads)), exposures_per_frame=0)
             return []
         sun = None
         blinded = set()
@@ -640,7 +664,9 @@ class StarTrackerUnit:
             blinded = faults.blinded_heads(t_mid)
             self.last_time_error_s = faults.timestamp_error_s(t_mid, rng)
         prev_mode = self.tracker_mode
-        samples, n_matched, latency, n_exp, frames = [], 0, 0.0, 0, []
+        samples, n_matched, n_exp, frames = [], 0, 0, []
+        head_latency = [0.0] * len(self.heads)
+        breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
         for k, (head, tracker) in enumerate(zip(self.heads, self.trackers)):
             plan = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
@@ -653,16 +679,25 @@ class StarTrackerUnit:
                 det = det.subset(np.zeros(0, dtype=np.int64))
             t_exp = plan.exposure_mid_times(t_frame) + self.last_time_error_s
             prior = self._inertial_prior(tracker, t_frame) if self.head_modes[k] != "track" else None
+            t_proc = time.perf_counter()
             if faults or len(det) == 0 or det.xy.dtype != np.float64 or det.intensity.dtype != np.float64:
                 res = tracker.process_frame(det.xy, det.intensity, t_exp, t_frame, omega_body=omega_hint, q_body_prior=prior)
             else:  # detections and times built here to process_frame's contract: skip its input checks
                 res = tracker.process_frame(
                     det.xy, det.intensity, t_exp, float(t_frame), omega_hint,
                     None if prior is None else rk.quat_normalize(prior), validate=False)
+            # the tracker's whole frame but lost-in-space identification: prediction and matching (timed by the
+            # tracker), grouping by instant, the N Wahba solutions and the lock tests (the rest)
+            tracker_ms = (time.perf_counter() - t_proc) * 1e3 - float(res.identify_latency_ms)
+            predict_match_ms = float(res.matching_latency_ms)
+            head_latency[k] = max(tracker_ms, predict_match_ms)
+            breakdown["predict_match"] += predict_match_ms
+            breakdown["group_solve_test"] += head_latency[k] - predict_match_ms
+            breakdown["identify"] += float(res.identify_latency_ms)
+            self._frame_head_samples[k] = len(res.samples)
             self.head_modes[k] = res.mode
             samples.extend(res.samples)
             n_matched += int(res.n_matched)
-            latency += float(res.matching_latency_ms)
             n_exp = max(n_exp, int(plan.n_exposures))
             frames.append((scene, det))
         # the sensor tracks while any head tracks
@@ -676,8 +711,10 @@ class StarTrackerUnit:
         if cfg.keep_images:
             self._last_frame = frames[0]
         self.last_stats = dict(
-            _empty_stats(),
-            matching_latency_ms=latency,
+            _empty_stats(len(self.heads)),
+            matching_latency_ms=sum(head_latency),
+            matching_latency_ms_per_head=head_latency,
+            latency_breakdown_ms=breakdown,
             n_stars=n_matched,
             exposures_per_frame=n_exp,
             n_attitude_samples=len(samples),

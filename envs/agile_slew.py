@@ -226,6 +226,12 @@ class AgileSlewEnv(gym.Env):
                 keep_images=render_mode == "rgb_array",
             )
         )
+        # the values in use of the arguments the camera spec decides (None above: the spec's), for provenance
+        cfg = self.avionics.config
+        self.frame_rate_hz = 1.0 / cfg.frame_period_s
+        self.exposure_mode, self.n_exposures = cfg.exposure_mode, cfg.n_exposures
+        self.identify_method, self.matcher, self.mag_limit = cfg.identify_method, cfg.matcher, cfg.mag_limit
+        self.n_heads = cfg.n_heads
         nw = self.spacecraft.n_wheels
         self.observation_layout = {
             "attitude_error_rotvec": slice(0, 3),

@@ -56,6 +56,8 @@ def to_jsonable(obj):
     if isinstance(obj, (np.floating, float)):
         f = float(obj)
         return None if not math.isfinite(f) else f
+    if callable(getattr(obj, "to_dict", None)):  # a StarTrackerSpec: its dict form
+        return to_jsonable(obj.to_dict())
     return obj
 
 

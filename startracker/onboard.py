@@ -600,7 +600,13 @@ class StarTrackerUnit:
                     n_exposures=1, exposure_s=exp.single_exposure_s, frame_period_s=exp.frame_period_s,
                     start_offset_s=0.5 * (exp.frame_period_s - exp.single_exposure_s))
             return plan
-        if exp.n_exposures == "adaptive":
+        if exp.n_exposures == "adaptive" and exp.n_rule == "paper000":
+            # paper 000's rule: one more exposure per rate_per_exposure_deg_s of body rate (1 -> 21 over 0 -> 20°/s);
+            # spots that come near each other are left to the centroiding (both fidelities merge touching spots)
+            w = np.zeros(3) if omega_hint is None else omega_hint
+            rate_deg_s = math.degrees(math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])))
+            n = min(max(1 + math.floor(rate_deg_s / exp.rate_per_exposure_deg_s + 0.5), 1), exp.max_exposures)
+        elif exp.n_exposures == "adaptive":
             # N is what the tracker can separate given its prediction (requested_n_exposures) and what the detector
             # can separate given the smear (the no-overlap rule of the exposure plan): the smaller of the two
             rate = np.zeros(3) if omega_hint is None else omega_hint

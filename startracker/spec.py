@@ -496,7 +496,9 @@ def preset_spec(name: str, q_cam_to_body=(1.0, 0.0, 0.0, 0.0)) -> StarTrackerSpe
 
 _PRESET_EXPOSURES = {
     # paper 000: 1 ms exposures behind the intensifier (21 fit in a 10 Hz frame: 210 Hz, §1), 20 ms to acquire
-    "paper000": ExposureSpec(mode="multi", exposure_s=1.0e-3, single_exposure_s=0.02, frame_rate_hz=10.0),
+    # (assumed); N follows the rate as in its §5 (1 -> 21 over 0 -> 20°/s)
+    "paper000": ExposureSpec(mode="multi", exposure_s=1.0e-3, single_exposure_s=0.02, frame_rate_hz=10.0,
+                             n_rule="paper000"),
     # paper 002 Table 1: exposure 125..500 ms, update rate 4 Hz; the shortest exposure (the least smear)
     "zy3": ExposureSpec(mode="single", exposure_s=0.125, single_exposure_s=0.125, frame_rate_hz=4.0, max_exposures=2),
     # paper 003 is silent: assumed 50 ms at 10 Hz, single exposure (a conventional tracker)

@@ -245,3 +245,15 @@ def test_detector_sigma_is_the_weighted_rms_of_the_theory():
     quiet = StarTrackerSpec.from_dict({"preset": "paper004", "detector": {"read_noise_e": 0.5}})
     assert quiet.centroid_sigma_px() < s.centroid_sigma_px()
     assert isinstance(s.detector, SensorModel)
+
+
+def test_the_cli_takes_a_spec_as_env_json(tmp_path, capsys):
+    from experiments.cli import main
+
+    assert main(["slew", "--no-plots", "--out", str(tmp_path), "--seed", "2", "--max-episode-s", "1",
+                 "--env", "camera=" + json.dumps(CUSTOM)]) == 0
+    capsys.readouterr()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    cam = summary["env_config"]["camera"]
+    assert StarTrackerSpec.from_dict(cam) == StarTrackerSpec.from_dict(CUSTOM)
+    assert summary["env_config"]["frame_rate_hz"] == 10.0 and summary["env_config"]["mag_limit"] == 6.5

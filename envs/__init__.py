@@ -8,7 +8,7 @@ from gymnasium.envs.registration import register, registry
 
 ENV_IDS = ("startracker/AgileSlew-v0", "startracker/AttitudeHold-v0")
 # info entries measured on the wall clock of this machine: reported, never fed back, so not bit-for-bit repeatable
-WALL_CLOCK_INFO_KEYS = ("matching_latency_ms",)
+WALL_CLOCK_INFO_KEYS = ("matching_latency_ms", "matching_latency_ms_per_head", "latency_breakdown_ms")
 
 if ENV_IDS[0] not in registry:
     register(

@@ -602,10 +602,13 @@ class StarTrackerUnit:
             return plan
         if exp.n_exposures == "adaptive" and exp.n_rule == "paper000":
             # paper 000's rule: one more exposure per rate_per_exposure_deg_s of body rate (1 -> 21 over 0 -> 20°/s);
-            # spots that come near each other are left to the centroiding (both fidelities merge touching spots)
+            # spots that come near each other are left to the centroiding (both fidelities merge touching spots).
+            # Only a prediction too uncertain for the frame step's own spacing test (one star's spots 1.5
+            # shift_k_sigma prediction σ apart, or the frame is refused) lowers it.
             w = np.zeros(3) if omega_hint is None else omega_hint
             rate_deg_s = math.degrees(math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])))
             n = min(max(1 + math.floor(rate_deg_s / exp.rate_per_exposure_deg_s + 0.5), 1), exp.max_exposures)
+            n = max(1, min(n, tracker.separable_n_exposures(1.5 * tracker.shift_k_sigma)))
         elif exp.n_exposures == "adaptive":
             # N is what the tracker can separate given its prediction (requested_n_exposures) and what the detector
             # can separate given the smear (the no-overlap rule of the exposure plan): the smaller of the two

@@ -376,15 +376,26 @@ class StarTracker:
         """Exposures the next frame should have: 1 while lost or acquiring, else the exposure plan's N.
 
         ``N = min(1 + round(|ω| / rate_per_exposure_deg_s), N_sep)``, clipped to ``[1, max_exposures]``,
-        where ``N_sep`` keeps the spots of one star (travel ``|ω_⊥| T f_px`` over a frame, split in N)
-        ``2 · shift_k_sigma`` prediction σ apart. 1 until the acceleration has been estimated (right
-        after acquisition or recovery, without a gyro: one more single-exposure frame).
+        where ``N_sep`` (:meth:`separable_n_exposures` with ``2 · shift_k_sigma``) keeps the spots of one star
+        (travel ``|ω_⊥| T f_px`` over a frame, split in N) ``2 · shift_k_sigma`` prediction σ apart. 1 until
+        the acceleration has been estimated (right after acquisition or recovery, without a gyro: one more
+        single-exposure frame).
+        """
+        return self.separable_n_exposures(2.0 * self.shift_k_sigma, cap_by_rate=True)
+
+    def separable_n_exposures(self, spacing_sigma: float, cap_by_rate: bool = False) -> int:
+        """The largest N whose spots of one star stay ``spacing_sigma`` prediction σ apart on the next frame.
+
+        1 while not tracking or before the acceleration is known; ``max_exposures`` when the prediction is exact
+        or ``spacing_sigma`` is 0. With ``cap_by_rate`` also at most ``1 + round(|ω| / rate_per_exposure_deg_s)``.
+        The frame step refuses frames whose spots are closer than ``1.5 · shift_k_sigma`` σ.
         """
         st = self._state
         if self._mode != "track" or st is None or not st.alpha_known:
             return 1
         w = st.omega_body
         n_rate = 1 + round(math.degrees(math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])) / self.rate_per_exposure_deg_s)
+        n_top = n_rate if cap_by_rate else self.max_exposures
         period = self._frame_interval_s
         # The next frame's last exposure: its centre is one interval after the last frame's centre, and its
         # exposures spread over at most a frame period.
@@ -394,8 +405,8 @@ class StarTracker:
                                                   self._cov_alpha_total(st), float(horizon), self._f_px, self._rho_max_px)
         w_cam = self._r_body_to_cam @ w
         travel_px = math.hypot(w_cam[0], w_cam[1]) * period * self._f_px
-        n_sep = n_rate if self.shift_k_sigma == 0 or sigma == 0 else int(travel_px / (2.0 * self.shift_k_sigma * sigma))
-        return min(max(min(n_rate, n_sep), 1), self.max_exposures)  # np.clip on Python ints
+        n_sep = n_top if spacing_sigma == 0 or sigma == 0 else int(travel_px / (spacing_sigma * sigma))
+        return min(max(min(n_top, n_sep), 1), self.max_exposures)  # np.clip on Python ints
 
     # ------------------------------------------------------------------ one frame
     def process_frame(self, xy, intensity, exposure_times, frame_time, omega_body=None, q_body_prior=None, *,

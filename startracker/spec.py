@@ -173,6 +173,10 @@ class TrackerSpec:
         Largest plausible body rate, °/s (> 0).
     coast_max_s : float
         How long a lost lock may be recovered by prediction, s (>= 0).
+    sigma_margin : float
+        The tracker assumes the detector's centroid σ times this (1 .. 10; ``centroid_sigma_px=None``): one σ per
+        head does not see what raises it frame by frame (stray light on the background, blends of near spots,
+        faint streaks); with 2 the soak with random faults and torques has no attitude beyond 5σ.
     sigma_rate_deg_s : float
         The detector's centroid σ (``centroid_sigma_px=None``) is taken over still spots and spots streaked at
         this body rate, °/s (>= 0; default half the env's 20°/s rate limit): a streak's centroid is much less
@@ -192,6 +196,7 @@ class TrackerSpec:
     accel_sigma_rad_s2: float = 0.02
     max_rate_deg_s: float = 30.0
     coast_max_s: float = 1.0
+    sigma_margin: float = 2.0
     sigma_rate_deg_s: float = 10.0
 
     def __post_init__(self):
@@ -211,10 +216,11 @@ class TrackerSpec:
         check_real(self.max_rate_deg_s, "max_rate_deg_s", 0.0, 360.0, lo_open=True)
         check_real(self.coast_max_s, "coast_max_s", 0.0)
         check_real(self.sigma_rate_deg_s, "sigma_rate_deg_s", 0.0, 360.0)
+        check_real(self.sigma_margin, "sigma_margin", 1.0, 10.0)
 
     def tracker_kwargs(self) -> dict:
         """Keyword arguments of :class:`startracker.sensor.StarTracker` (without the centroid σ)."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("centroid_sigma_px", "sigma_rate_deg_s")}
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("centroid_sigma_px", "sigma_rate_deg_s", "sigma_margin")}
 
 
 # ------------------------------------------------------------------------------------------ dict forms
@@ -369,17 +375,22 @@ class StarTrackerSpec:
         return self.exposure.frame_period_s
 
     def centroid_sigma_px(self) -> float:
-        """The tracker's per-axis centroid σ, px: ``tracker.centroid_sigma_px`` if given, else the detector's.
+        """The tracker's per-axis centroid σ, px: ``tracker.centroid_sigma_px`` if given, else the detector's
+        (:meth:`detector_sigma_px`) times ``tracker.sigma_margin``."""
+        if self.tracker.centroid_sigma_px is not None:
+            return float(self.tracker.centroid_sigma_px)
+        return self.tracker.sigma_margin * _detector_sigma_px(self)
 
-        The detector's is the RMS of the predicted centroid error (:func:`startracker.centroid.fidelity.
+    def detector_sigma_px(self) -> float:
+        """The detector's per-axis centroid σ on a quiet sky, px.
+
+        The RMS of the predicted centroid error (:func:`startracker.centroid.fidelity.
         predicted_centroid_sigma_px`, spots of one multi-exposure exposure) over the stars the tracker will
         see: one per 0.1 mag bin up to ``mag_limit``, weighted by the sky's star counts (×10^0.6 per
         magnitude) and by their detection probability, still and streaked at ``tracker.sigma_rate_deg_s``
         across the boresight (equal shares); at least 0.05 px (what the catalog and the distortion model
         leave).
         """
-        if self.tracker.centroid_sigma_px is not None:
-            return float(self.tracker.centroid_sigma_px)
         return _detector_sigma_px(self)
 
     def with_mounting(self, q_cam_to_body) -> "StarTrackerSpec":
@@ -496,9 +507,9 @@ def preset_spec(name: str, q_cam_to_body=(1.0, 0.0, 0.0, 0.0)) -> StarTrackerSpe
 
 _PRESET_EXPOSURES = {
     # paper 000: 1 ms exposures behind the intensifier (21 fit in a 10 Hz frame: 210 Hz, §1), 20 ms to acquire
-    # (assumed); N follows the rate as in its §5 (1 -> 21 over 0 -> 20°/s)
-    "paper000": ExposureSpec(mode="multi", exposure_s=1.0e-3, single_exposure_s=0.02, frame_rate_hz=10.0,
-                             n_rule="paper000"),
+    # (assumed). N by the separation rule; n_rule="paper000" is the paper's (1 -> 21 over 0 -> 20°/s, §5), which
+    # under random torques lets an instant match one exposure off (the soak sees it)
+    "paper000": ExposureSpec(mode="multi", exposure_s=1.0e-3, single_exposure_s=0.02, frame_rate_hz=10.0),
     # paper 002 Table 1: exposure 125..500 ms, update rate 4 Hz; the shortest exposure (the least smear)
     "zy3": ExposureSpec(mode="single", exposure_s=0.125, single_exposure_s=0.125, frame_rate_hz=4.0, max_exposures=2),
     # paper 003 is silent: assumed 50 ms at 10 Hz, single exposure (a conventional tracker)

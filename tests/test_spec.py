@@ -239,11 +239,12 @@ def test_detector_sigma_is_the_weighted_rms_of_the_theory():
     moving, p1 = predicted_centroid_sigma_px(s.detector, s.camera, v, tau, smear_px=streak_px)
     w0, w1 = 10 ** (0.6 * v) * p0, 10 ** (0.6 * v) * p1
     expected = math.sqrt((np.sum(w0 * still**2) + np.sum(w1 * moving**2)) / (np.sum(w0) + np.sum(w1)))
-    assert s.centroid_sigma_px() == pytest.approx(expected)
+    assert s.detector_sigma_px() == pytest.approx(expected)
+    assert s.centroid_sigma_px() == pytest.approx(s.tracker.sigma_margin * expected)
     assert np.all(moving[p1 > 0.5] > still[p1 > 0.5])  # a streak's centroid is less certain
     # a quieter detector gives a smaller σ
     quiet = StarTrackerSpec.from_dict({"preset": "paper004", "detector": {"read_noise_e": 0.5}})
-    assert quiet.centroid_sigma_px() < s.centroid_sigma_px()
+    assert quiet.detector_sigma_px() < s.detector_sigma_px()
     assert isinstance(s.detector, SensorModel)
 
 
@@ -257,3 +258,18 @@ def test_the_cli_takes_a_spec_as_env_json(tmp_path, capsys):
     cam = summary["env_config"]["camera"]
     assert StarTrackerSpec.from_dict(cam) == StarTrackerSpec.from_dict(CUSTOM)
     assert summary["env_config"]["frame_rate_hz"] == 10.0 and summary["env_config"]["mag_limit"] == 6.5
+
+
+def test_the_readme_example_runs():
+    """The README's "Describe your own star tracker" block, as written."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    section = text.split("### Describe your own star tracker", 1)[1]
+    code = section.split("```python", 1)[1].split("```", 1)[0]
+    namespace = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    env = namespace["env"]
+    assert env.unwrapped.avionics.heads[0].camera.resolution == (1280, 1024)
+    assert env.unwrapped.avionics.trackers[0].centroid_sigma_px == pytest.approx(namespace["spec"].centroid_sigma_px())
+    env.close()

@@ -47,3 +47,36 @@ def test_matching_latency_is_the_sum_of_its_parts_and_of_the_heads():
     assert s["matching_latency_ms"] == pytest.approx(b["predict_match"] + b["group_solve_test"], rel=1e-9)
     assert s["matching_latency_ms"] == pytest.approx(sum(s["matching_latency_ms_per_head"]), rel=1e-9)
     assert len(s["matching_latency_ms_per_head"]) == 2
+
+
+def observe_spinning(config, rate_deg_s, seconds=2.0, seed=0):
+    """A constant cross-boresight rate about body x."""
+    from startracker.rotations import quat_integrate
+
+    unit = StarTrackerUnit(config)
+    rng = np.random.default_rng(seed)
+    unit.reset(rng)
+    q0 = quat_random(np.random.default_rng(5))
+    w = np.radians([rate_deg_s, 0.0, 0.0])
+    g = int(round(config.frame_period_s * config.gyro_rate_hz))
+    n = int(round(seconds / config.frame_period_s))
+    times = np.arange(n * g + 1) / config.gyro_rate_hz
+    quats = quat_integrate(np.broadcast_to(q0, (len(times), 4)), w, times)
+    out = []
+    for f in range(n):
+        sl = slice(f * g, (f + 1) * g + 1)
+        unit.observe(times[sl], quats[sl], rng)
+        out.append((unit.tracker_mode, unit.last_stats["exposures_per_frame"], unit.last_stats["update_rate_hz"]))
+    return out
+
+
+@pytest.mark.parametrize("rate_deg_s", [5.0, 20.0])
+def test_paper000_rule_gives_one_exposure_per_degree_per_second(rate_deg_s):
+    """Paper 000 §5: N rises 1 -> 21 as the rate rises 0 -> 20°/s; N = 1 + rate / (1°/s), N attitudes per frame."""
+    cam = {"preset": "paper000", "exposure": {"n_rule": "paper000"}}
+    rows = observe_spinning(UnitConfig(camera=cam, gyro_grade="navigation"), rate_deg_s)
+    late = [r for r in rows[-8:] if r[0] == "track"]
+    assert len(late) >= 6
+    for mode, n_exp, rate_hz in late:
+        assert n_exp == 1 + round(rate_deg_s)
+        assert rate_hz == pytest.approx(10.0 * n_exp)

@@ -15,6 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.algebra import quat_multiply_into, quat_normalize_canonical, quat_to_rotation
 from startracker.kernels.attitude import solve_wahba_one
 from startracker.kernels.kvector import kvector_fill
 from startracker.kernels.sensor import innovation_chi2_mean
@@ -36,41 +37,6 @@ __all__ = [
 
 
 # ------------------------------------------------------------------------------------------- prediction
-@njit(cache=True)
-def _quat_mul(a, b, out):
-    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
-    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
-    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
-    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
-
-
-@njit(cache=True)
-def _quat_normalize_canonical(q):
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    sign = 1.0
-    for i in range(4):
-        if q[i] != 0.0:
-            sign = 1.0 if q[i] > 0.0 else -1.0
-            break
-    for i in range(4):
-        q[i] = sign * q[i] / n
-
-
-@njit(cache=True)
-def _quat_to_matrix(q, m):
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    w, x, y, z = q[0] / n, q[1] / n, q[2] / n, q[3] / n
-    m[0, 0] = 1 - 2 * (y * y + z * z)
-    m[0, 1] = 2 * (x * y - w * z)
-    m[0, 2] = 2 * (x * z + w * y)
-    m[1, 0] = 2 * (x * y + w * z)
-    m[1, 1] = 1 - 2 * (x * x + z * z)
-    m[1, 2] = 2 * (y * z - w * x)
-    m[2, 0] = 2 * (x * z - w * y)
-    m[2, 1] = 2 * (y * z + w * x)
-    m[2, 2] = 1 - 2 * (x * x + y * y)
-
-
 @njit(cache=True)
 def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
     """Second-order attitude propagation to N instants and the camera's attitude there.
@@ -123,10 +89,10 @@ def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
         dq[1] = scale * rx
         dq[2] = scale * ry
         dq[3] = scale * rz
-        _quat_mul(q0, dq, q_body[i])
-        _quat_normalize_canonical(q_body[i])
-        _quat_mul(q_body[i], q_cam_to_body, qc)
-        _quat_to_matrix(qc, r[i])
+        quat_multiply_into(q0, dq, q_body[i])
+        quat_normalize_canonical(q_body[i])
+        quat_multiply_into(q_body[i], q_cam_to_body, qc)
+        quat_to_rotation(qc, r[i])
         for k in range(3):
             mid[k] += r[i, k, 2]
     nm = math.sqrt(mid[0] * mid[0] + mid[1] * mid[1] + mid[2] * mid[2])

@@ -363,6 +363,7 @@ class StarTracker:
         self._frame_interval_s = self.frame_period_s
         self._last_gyro: tuple | None = None
         self._last_exp_centre = 0.0
+        self._dt_frame = self.frame_period_s
 
     def _previous_gyro(self, t_frame: float):
         """The previous frame's gyro reading as a rate measurement, if recent (else None)."""
@@ -458,6 +459,8 @@ class StarTracker:
         """The work of :meth:`process_frame` on checked inputs."""
         if self._last_frame_time is not None and t_frame <= self._last_frame_time:
             self.reset()  # time went backwards: a new run, nothing of the old one is valid
+        dt_frame = self.frame_period_s if self._last_frame_time is None else t_frame - self._last_frame_time
+        self._dt_frame = dt_frame  # the update rate of the results built below
         if self._mode == "track":
             att = self._track(xy, t_exp, self._state, gyro, t_frame)
             if att.ok:
@@ -470,17 +473,17 @@ class StarTracker:
         else:
             result = self._lost(xy, intensity, t_exp, gyro, t_frame, prior)
 
-        if self._last_frame_time is None:
-            dt_frame = self.frame_period_s
-        else:
-            dt_frame = t_frame - self._last_frame_time
+        if self._last_frame_time is not None:
             self._frame_interval_s = dt_frame
         self._last_frame_time = t_frame
         self._last_gyro = None if gyro is None else (t_frame, gyro, self._var_gyro)
-        self._last_exp_centre = float(0.5 * (t_exp[0] + t_exp[-1]))
+        self._last_exp_centre = 0.5 * (float(t_exp[0]) + float(t_exp[-1]))
         r = result
+        rate = len(r.samples) / dt_frame
+        if r.mode == self._mode and r.update_rate_hz == rate:  # built final (the tracking paths): no copy
+            return r
         return FrameResult(self._mode, r.samples, r.n_matched, r.n_detections, r.matching_latency_ms,
-                           len(r.samples) / dt_frame, r.status, r.n_exposures, r.n_predicted, r.radius_px,
+                           rate, r.status, r.n_exposures, r.n_predicted, r.radius_px,
                            r.identify_latency_ms, r.residual_arcsec, r.skipped_instants)
 
     # ------------------------------------------------------------------ modes
@@ -751,7 +754,8 @@ class StarTracker:
 
     def _result(self, att: _Attempt, xy, t_exp, status=None, samples=None) -> FrameResult:
         text = att.status if status is None else (status if not att.ok else f"{status}; {att.status}")
+        samples = list(samples or [])
         return FrameResult(
-            self._mode, list(samples or []), att.n_matched, len(xy), att.latency_ms, 0.0, text, len(t_exp),
+            self._mode, samples, att.n_matched, len(xy), att.latency_ms, len(samples) / self._dt_frame, text, len(t_exp),
             att.n_predicted, att.radius_px, 0.0, att.residual_arcsec, att.skipped,
         )

@@ -696,14 +696,14 @@ class StarTracker:
         elif len(t) >= 3:
             # Least-squares line θ(τ) = c + ω τ through the rotation vectors relative to the last instant:
             # its slope is the rate at the mean time.
-            theta = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(q_ref)[None], q))
+            theta = rk.quat_relative_rotvec(q_ref[None], q)
             tau = t - t_ref
             sxx = float(np.sum((tau - tau.mean()) ** 2))
             w_fit = ((tau - tau.mean()) @ (theta - theta.mean(axis=0))) / sxx
             meas = (float(t.mean()), w_fit, covs.mean(axis=0) / sxx)
         elif t_ref > st.t_s:
             dt = t_ref - st.t_s
-            rotvec = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(np.asarray(st.q_body_to_icrs, dtype=np.float64)), q_ref))
+            rotvec = rk.quat_relative_rotvec(np.asarray(st.q_body_to_icrs, dtype=np.float64), q_ref)
             meas = (st.t_s + dt / 2, rotvec / dt, (st.cov_theta_rad2 + cov_ref) / dt**2)
         else:
             meas = None

@@ -10,7 +10,9 @@ and interquartile range over the scenes. All three results are checked equal on 
 
 Part 2, the frame pipeline as the star tracker runs it (``validate=False``): ``predict_star_positions`` from a
 state 20″ and 0.05 °/s off the truth, ``match_stars`` (each matcher), ``attitudes_per_instant`` (unique assignment,
-grouping, N Wahba solutions with outlier rejection), on frames of the same camera slewing at (N − 1) °/s.
+grouping, N Wahba solutions with outlier rejection), on frames of the same camera slewing at (N − 1) °/s; and the
+same frame as the tracker runs it, in one compiled call after the propagation and the cone search
+(``kernels.track.track_frame``: projection, DKVLUT, grouping, N Wahba, innovation).
 
     python benchmarks/bench_matchers.py            # 60 scenes per W, 7 repeats
     python benchmarks/bench_matchers.py --quick    # 20 scenes, 5 repeats
@@ -34,9 +36,17 @@ from bench_matching import FRAME_S, make_scene  # noqa: E402
 from startracker.catalog import load_catalog  # noqa: E402
 from startracker.optics import camera_preset  # noqa: E402
 from startracker.rotations import quat_from_rotvec, quat_multiply, quat_random  # noqa: E402
-from startracker.track import MATCH_METHODS, attitudes_per_instant, match_stars, predict_star_positions  # noqa: E402
+from startracker.kernels import track as tk  # noqa: E402
+from startracker.track import (  # noqa: E402
+    MATCH_METHODS,
+    attitudes_per_instant,
+    camera_projection_model,
+    match_stars,
+    predict_star_positions,
+)
 
 N_VALUES = (5, 15, 21)
+EYE_COV = 1e-10 * np.eye(3)  # the prediction covariances of the innovation test (its value does not change the cost)
 M_STARS = 30
 TARGET_DKVLUT_MS = 0.03  # at W = 450
 TARGET_BRUTE_RATIO = 10.0
@@ -110,7 +120,7 @@ def pipeline_table(cam, cat, n_scenes: int, repeats: int, rng) -> None:
     print(f"\nPart 2: frame pipeline as the tracker runs it (validate=False), ms per frame, median over {n_scenes} "
           f"frames of the per-frame median of {repeats} × 10 calls")
     hdr = (f"{'N':>3} {'W':>5} | {'predict':>8} | {'match dk':>8} {'match br':>8} {'match kd':>8} | {'group+N Wahba':>13} | "
-           f"{'total (dk)':>10} {'total (br)':>10} {'total (kd)':>10}")
+           f"{'total (dk)':>10} {'total (br)':>10} {'total (kd)':>10} | {'one call (dk)':>13}")
     print(hdr)
     print("-" * len(hdr))
     alpha = np.zeros(3)
@@ -122,17 +132,31 @@ def pipeline_table(cam, cat, n_scenes: int, repeats: int, rng) -> None:
             idx = match_stars(pred.xy, obs, 6.0, "dkvlut", validate=False)
             inst = attitudes_per_instant(obs, idx, pred, cam, cat, 1.0, 3, 5.0, validate=False)
             assert inst.ok.all()
+            fused = fused_frame(cam, cat, q_est, times, w_est, alpha, obs)
+            assert np.array_equal(fused[2], inst.q_body_to_icrs) and np.array_equal(fused[6], inst.ok)
             t_pred = per_call_s(lambda: predict_star_positions(cam, cat, q_est, times, 0.0, w_est, alpha, 6.0,
                                                                validate=False), repeats)
             t_match = [per_call_s(lambda m=m: match_stars(pred.xy, obs, 6.0, m, validate=False), repeats)
                        for m in MATCH_METHODS]
             t_group = per_call_s(lambda: attitudes_per_instant(obs, idx, pred, cam, cat, 1.0, 3, 5.0, validate=False),
                                  repeats)
-            rows.append([len(pred), t_pred, *t_match, t_group])
+            t_fused = per_call_s(lambda: fused_frame(cam, cat, q_est, times, w_est, alpha, obs), repeats)
+            rows.append([len(pred), t_pred, *t_match, t_group, t_fused])
         r = np.median(np.array(rows), axis=0)
-        w_med, tp, tm, tg = r[0], 1e3 * r[1], 1e3 * r[2:5], 1e3 * r[5]
+        w_med, tp, tm, tg, tf = r[0], 1e3 * r[1], 1e3 * r[2:5], 1e3 * r[5], 1e3 * r[6]
         print(f"{n:>3} {w_med:5.0f} | {tp:8.4f} | {tm[0]:8.4f} {tm[1]:8.4f} {tm[2]:8.4f} | {tg:13.4f} | "
-              f"{tp + tm[0] + tg:10.4f} {tp + tm[1] + tg:10.4f} {tp + tm[2] + tg:10.4f}")
+              f"{tp + tm[0] + tg:10.4f} {tp + tm[1] + tg:10.4f} {tp + tm[2] + tg:10.4f} | {tf:13.4f}")
+
+
+def fused_frame(cam, cat, q_est, times, w_est, alpha, obs):
+    """The same frame as the star tracker runs it: propagation, cone search, then ``track_frame`` (one call)."""
+    q_body, r_c2i, mid, spread = tk.propagate_attitudes(q_est, w_est, alpha, times, np.array(cam.q_cam_to_body))
+    cand = cat.cone_search(mid, min(np.pi, cam.half_diagonal_fov_rad + spread + 6.0 / cam.focal_length_px + 0.02),
+                           validate=False)
+    sigma_rad = 1.0 / cam.focal_length_px
+    return tk.track_frame(q_body, r_c2i, cand, cat.vectors, *camera_projection_model(cam), *cam.resolution, obs, 6.0,
+                          False, cam.r_cam_to_body, sigma_rad, 3, 5.0 * sigma_rad, times, 0.0, EYE_COV, EYE_COV,
+                          EYE_COV)
 
 
 def main(argv=None):
@@ -155,6 +179,7 @@ def main(argv=None):
     for m in MATCH_METHODS:
         idx = match_stars(pred.xy, obs, 6.0, m, validate=False)
     attitudes_per_instant(obs, idx, pred, cam, cat, 1.0, 3, 5.0, validate=False)
+    fused_frame(cam, cat, q_est, times, w_est, np.zeros(3), obs)
     matcher_table(cam, cat, n_scenes, repeats, rng)
     pipeline_table(cam, cat, max(5, n_scenes // 3), repeats, rng)
 

@@ -364,7 +364,7 @@ class AgileSlewEnv(gym.Env):
         wheels = self.spacecraft.wheel_momentum_fraction
         n_w = len(wheels)
         obs = np.empty(10 + n_w, dtype=np.float32)
-        obs[0:3] = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), self._q_target))
+        obs[0:3] = rk.quat_relative_rotvec(est.q_body_to_icrs, self._q_target)
         w_max = self.avionics.gyro_max_rate_rad_s
         obs[3:6] = np.clip(est.omega_body, -w_max, w_max)
         obs[6:6 + n_w] = np.clip(wheels, -1.0, 1.0)
@@ -379,7 +379,7 @@ class AgileSlewEnv(gym.Env):
         p = est.attitude_cov_rad2
         if p is None:
             return None
-        d0, d1, d2 = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), q_true)).tolist()
+        d0, d1, d2 = rk.quat_relative_rotvec(est.q_body_to_icrs, q_true).tolist()
         (a, b, c), (_, e, f), (_, _, i) = p.tolist()  # symmetric: d' P⁻¹ d by the adjugate, on scalars
         c00, c01, c02 = e * i - f * f, c * f - b * i, b * f - c * e
         c11, c12, c22 = a * i - c * c, b * c - a * f, a * e - b * b

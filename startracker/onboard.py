@@ -44,7 +44,7 @@ from startracker.imu import GYRO_GRADES, Gyro, gyro_preset
 from startracker.kernels import rotations as rk
 from startracker.kernels import sensor as sensor_kernels
 from startracker.multifov import MultiFovSensor
-from startracker.rotations import quat_conjugate, quat_integrate, quat_interpolate, quat_rotate
+from startracker.rotations import quat_integrate, quat_interpolate, quat_rotate
 from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
 from startracker.sensor import MODES, AttitudeSample, StarTracker
 from startracker.spec import IDENTIFY_METHODS, MATCHERS, StarTrackerSpec, as_spec
@@ -472,8 +472,7 @@ class StarTrackerUnit:
         duration_s = n_frames * self.config.frame_period_s
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
-            dq = rk.quat_multiply(quat_conjugate(quats[:-1]), quats[1:])
-            omega_avg = rk.quat_to_rotvec(dq) / np.diff(times)[:, None]
+            omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / np.diff(times)[:, None]
             omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
             if self.faults:
                 omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)

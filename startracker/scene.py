@@ -108,7 +108,10 @@ class ExposurePlan:
     # ------------------------------------------------------------------ timing
     def exposure_start_times(self, t_frame_start: float) -> np.ndarray:
         """Start instant of each exposure, s, shape (N,)."""
-        t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))
+        if type(t_frame_start) is float and math.isfinite(t_frame_start):  # the per-frame caller's float
+            t0 = t_frame_start
+        else:
+            t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))
         return t0 + self.start_offset_s + self.spacing_s * np.arange(self.n_exposures)
 
     def exposure_mid_times(self, t_frame_start: float) -> np.ndarray:

@@ -60,6 +60,7 @@ from startracker.rotations import quat_conjugate, quat_multiply, quat_normalize,
 from startracker.validation import as_float_array, check_positive
 from startracker.track import (
     MATCH_METHODS,
+    camera_projection_model,
     RADIUS_K_SIGMA,
     prediction_radius_px,
     attitudes_per_instant,
@@ -117,7 +118,8 @@ class FrameResult:
         Detections used (tracking) or identified (lost-in-space).
     n_detections : int
     matching_latency_ms : float
-        Wall clock of prediction + matching in this frame (0 when no tracking attempt ran).
+        Wall clock of the tracking attempt in this frame: prediction, matching and the per-instant solutions
+        (0 when no tracking attempt ran).
     update_rate_hz : float
         Samples of this frame divided by the frame interval.
     status : str
@@ -343,6 +345,12 @@ class StarTracker:
         self._r_body_to_cam = _frozen(np.ascontiguousarray(camera.r_cam_to_body.T))
         self._f_px = float(camera.focal_length_px)
         self._rho_max_px = math.hypot(*camera.resolution) / 2.0
+        # The compiled frame (track_frame) needs the kernels' camera model and a compiled matcher; a camera
+        # projecting by a model of its own, or the cKDTree matcher, goes through the public stages one by one.
+        model = camera_projection_model(camera)
+        self._frame_model = None if model is None or matcher == "kdtree" else (*model, *map(int, camera.resolution))
+        self._q_cam_to_body = _frozen(np.array(camera.q_cam_to_body, dtype=np.float64))
+        self._half_diag_fov_rad = float(camera.half_diagonal_fov_rad)
         self.reset()
 
     # ------------------------------------------------------------------ public state
@@ -355,6 +363,7 @@ class StarTracker:
         self._frame_interval_s = self.frame_period_s
         self._last_gyro: tuple | None = None
         self._last_exp_centre = 0.0
+        self._dt_frame = self.frame_period_s
 
     def _previous_gyro(self, t_frame: float):
         """The previous frame's gyro reading as a rate measurement, if recent (else None)."""
@@ -461,6 +470,8 @@ class StarTracker:
         """The work of :meth:`process_frame` on checked inputs."""
         if self._last_frame_time is not None and t_frame <= self._last_frame_time:
             self.reset()  # time went backwards: a new run, nothing of the old one is valid
+        dt_frame = self.frame_period_s if self._last_frame_time is None else t_frame - self._last_frame_time
+        self._dt_frame = dt_frame  # the update rate of the results built below
         if self._mode == "track":
             att = self._track(xy, t_exp, self._state, gyro, t_frame)
             if att.ok:
@@ -473,17 +484,17 @@ class StarTracker:
         else:
             result = self._lost(xy, intensity, t_exp, gyro, t_frame, prior)
 
-        if self._last_frame_time is None:
-            dt_frame = self.frame_period_s
-        else:
-            dt_frame = t_frame - self._last_frame_time
+        if self._last_frame_time is not None:
             self._frame_interval_s = dt_frame
         self._last_frame_time = t_frame
         self._last_gyro = None if gyro is None else (t_frame, gyro, self._var_gyro)
-        self._last_exp_centre = float(0.5 * (t_exp[0] + t_exp[-1]))
+        self._last_exp_centre = 0.5 * (float(t_exp[0]) + float(t_exp[-1]))
         r = result
+        rate = len(r.samples) / dt_frame
+        if r.mode == self._mode and r.update_rate_hz == rate:  # built final (the tracking paths): no copy
+            return r
         return FrameResult(self._mode, r.samples, r.n_matched, r.n_detections, r.matching_latency_ms,
-                           len(r.samples) / dt_frame, r.status, r.n_exposures, r.n_predicted, r.radius_px,
+                           rate, r.status, r.n_exposures, r.n_predicted, r.radius_px,
                            r.identify_latency_ms, r.residual_arcsec, r.skipped_instants)
 
     # ------------------------------------------------------------------ modes
@@ -611,28 +622,33 @@ class StarTracker:
                 latency = (time.perf_counter() - t0) * 1e3
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
                                        f"apart, prediction σ {sig_pred:.1f} px)", [], 0, 0, r, latency)
-        # predict_star_positions and match_stars on the tracker's own checked state (their checks skipped)
-        pred = predict_star_positions(
-            self.camera, self.catalog, rk.quat_normalize(np.asarray(st.q_body_to_icrs, dtype=np.float64)),
-            t_exp, float(st.t_s), np.asarray(omega, dtype=np.float64), np.asarray(alpha, dtype=np.float64), float(r),
-            validate=False)
-        idx = match_stars(pred.xy, xy, float(r), self.matcher, validate=False)
+        t_ref = float(st.t_s)
+        q0 = rk.quat_normalize(np.asarray(st.q_body_to_icrs, dtype=np.float64))
+        if self._frame_model is not None:
+            # prediction's attitudes and cone search, then projection, matching, N Wahba and innovation compiled
+            q_pred, r_c2i, mid, spread = track_kernels.propagate_attitudes(q0, omega, alpha, t_exp - t_ref,
+                                                                           self._q_cam_to_body)
+            cone = min(math.pi, self._half_diag_fov_rad + spread + r / self._f_px + 0.02)
+            cand = self.catalog.cone_search(mid, cone, validate=False)
+            n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = track_kernels.track_frame(
+                q_pred, r_c2i, cand, self.catalog.vectors, *self._frame_model, xy, float(r), self.matcher == "brute",
+                self._r_cam_to_body, self.sigma_rad, self.min_stars_per_instant, self.outlier_k_sigma * self.sigma_rad,
+                t_exp, t_ref, st.cov_theta_rad2, cov_w, cov_a)
+        else:
+            n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = self._track_stages(
+                xy, t_exp, q0, t_ref, omega, alpha, float(r), st.cov_theta_rad2, cov_w, cov_a)
         latency = (time.perf_counter() - t0) * 1e3
-        n_pred = int(pred.on_detector.sum())
         if n_pred == 0:
             return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
-        inst = attitudes_per_instant(xy, idx, pred, self.camera, self.catalog, self.centroid_sigma_px,
-                                     self.min_stars_per_instant, self.outlier_k_sigma, validate=False)
-        n_matched = int(np.count_nonzero(inst.assignment >= 0))
         frac = n_matched / n_pred
-        sel = np.flatnonzero(inst.ok)
+        sel = np.flatnonzero(ok)
         n_ok = len(sel)
         if n_ok:
-            res_ok = inst.residual_rms_arcsec[sel]
+            res_ok = rms_all[sel]
             rms = math.sqrt(float(res_ok @ res_ok) / n_ok)
         else:
             rms = float("inf")
-        skipped = tuple(inst.skipped.tolist())
+        skipped = () if n_ok == len(ok) else tuple(np.flatnonzero(~ok).tolist())
         base = dict(n_matched=n_matched, n_predicted=n_pred, radius_px=r, latency_ms=latency, residual_arcsec=rms, skipped=skipped)
         if not n_ok:
             return _Attempt(False, f"no exposure instant with {self.min_stars_per_instant} matched stars ({n_matched}/{n_pred} matched)", [], **base)
@@ -643,7 +659,7 @@ class StarTracker:
         # A frame matched one exposure off leaves the first (prediction lagging) or last (leading) instant
         # without stars while the others are full; a state already off by one exposure agrees with its own
         # prediction, so only this test sees it.
-        n_st = inst.n_stars.tolist()
+        n_st = n_stars.tolist()
         if len(n_st) >= 2:
             ordered = sorted(n_st)
             half = len(ordered) // 2
@@ -651,21 +667,34 @@ class StarTracker:
             if min(n_st[0], n_st[-1]) < 0.5 * median:
                 return _Attempt(False, f"first/last instant nearly empty ({n_st[0]}, {n_st[-1]} stars, median "
                                        f"{median:.0f}): matched one exposure off", [], **base)
-        # Innovation: solved vs predicted attitude at each solved instant (fresh arrays of this frame's solve).
-        t_s = inst.times_s[sel]
-        q_sol = inst.q_body_to_icrs[sel]
-        cov_sol = inst.covariance_rad2[sel]
-        nis = sensor_kernels.innovation_chi2_mean(pred.q_body_to_icrs[sel], q_sol, cov_sol, t_s - st.t_s,
-                                                  st.cov_theta_rad2, cov_w, cov_a)
+        # Innovation: solved vs predicted attitude at each solved instant.
         if nis > self.innovation_gate:
             return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", [], **base)
+        t_s = t_exp[sel]
+        q_sol = q_all[sel]
+        cov_sol = cov_all[sel]
         # the rows of the frame's own copies: no sample shares memory with another or with the tracker
-        samples = list(map(AttitudeSample, t_s.tolist(), q_sol, cov_sol, inst.n_stars[sel].tolist()))
+        samples = list(map(AttitudeSample, t_s.tolist(), q_sol, cov_sol, n_stars[sel].tolist()))
         new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)
         status = f"tracking {n_ok}/{len(t_exp)} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
         if skipped:
             status += f", skipped instants {list(skipped)}"
         return _Attempt(True, status, samples, state=new_state, **base)
+
+    def _track_stages(self, xy, t_exp, q0, t_ref, omega, alpha, r, cov_theta, cov_w, cov_a):
+        """The compiled frame's results through the public stages (a camera with its own projection, cKDTree)."""
+        pred = predict_star_positions(self.camera, self.catalog, q0, t_exp, t_ref, omega, alpha, r, validate=False)
+        idx = match_stars(pred.xy, xy, r, self.matcher, validate=False)
+        n_pred = int(pred.on_detector.sum())
+        inst = attitudes_per_instant(xy, idx, pred, self.camera, self.catalog, self.centroid_sigma_px,
+                                     self.min_stars_per_instant, self.outlier_k_sigma, validate=False)
+        n_matched = int(np.count_nonzero(inst.assignment >= 0))
+        sel = np.flatnonzero(inst.ok)
+        nis = sensor_kernels.innovation_chi2_mean(pred.q_body_to_icrs[sel], inst.q_body_to_icrs[sel],
+                                                  inst.covariance_rad2[sel], t_exp[sel] - t_ref, cov_theta, cov_w,
+                                                  cov_a)
+        return (n_pred, n_matched, inst.q_body_to_icrs, inst.covariance_rad2, inst.residual_rms_arcsec, inst.n_stars,
+                inst.ok, nis)
 
     def _update_state(self, st: MotionState, t, q, covs, gyro, t_frame) -> MotionState:
         """New motion state from a tracked frame's solved instants ``t`` (n,), ``q`` (n, 4), ``covs`` (n, 3, 3)
@@ -678,14 +707,14 @@ class StarTracker:
         elif len(t) >= 3:
             # Least-squares line θ(τ) = c + ω τ through the rotation vectors relative to the last instant:
             # its slope is the rate at the mean time.
-            theta = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(q_ref)[None], q))
+            theta = rk.quat_relative_rotvec(q_ref[None], q)
             tau = t - t_ref
             sxx = float(np.sum((tau - tau.mean()) ** 2))
             w_fit = ((tau - tau.mean()) @ (theta - theta.mean(axis=0))) / sxx
             meas = (float(t.mean()), w_fit, covs.mean(axis=0) / sxx)
         elif t_ref > st.t_s:
             dt = t_ref - st.t_s
-            rotvec = rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(np.asarray(st.q_body_to_icrs, dtype=np.float64)), q_ref))
+            rotvec = rk.quat_relative_rotvec(np.asarray(st.q_body_to_icrs, dtype=np.float64), q_ref)
             meas = (st.t_s + dt / 2, rotvec / dt, (st.cov_theta_rad2 + cov_ref) / dt**2)
         else:
             meas = None
@@ -736,7 +765,8 @@ class StarTracker:
 
     def _result(self, att: _Attempt, xy, t_exp, status=None, samples=None) -> FrameResult:
         text = att.status if status is None else (status if not att.ok else f"{status}; {att.status}")
+        samples = list(samples or [])
         return FrameResult(
-            self._mode, list(samples or []), att.n_matched, len(xy), att.latency_ms, 0.0, text, len(t_exp),
+            self._mode, samples, att.n_matched, len(xy), att.latency_ms, len(samples) / self._dt_frame, text, len(t_exp),
             att.n_predicted, att.radius_px, 0.0, att.residual_arcsec, att.skipped,
         )

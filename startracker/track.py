@@ -61,6 +61,7 @@ __all__ = [
     "prediction_covariance",
     "prediction_sigma_px",
     "prediction_radius_px",
+    "camera_projection_model",
     "InstantAttitudes",
     "attitudes_per_instant",
 ]
@@ -372,7 +373,7 @@ def predict_star_positions(
     return _predict(camera, catalog, q0, t, t_ref, w, a, margin)
 
 
-def _camera_model(camera: Camera):
+def camera_projection_model(camera: Camera):
     """The projection parameters ``(f_mm, k1_per_mm2, pixel_mm, ppx, ppy, cos θ, sin θ)`` of the kernels'
     camera model (:func:`startracker.kernels.track.project_frame`), or None for a camera class that projects
     by a model of its own (then its ``project``/``unproject`` methods are called).
@@ -407,7 +408,7 @@ def _predict(camera: Camera, catalog: StarCatalog, q0: np.ndarray, t: np.ndarray
     if len(cand) == 0:
         e = np.empty(0, dtype=np.int64)
         return PredictedStars(np.empty((0, 2)), e, e.copy(), np.empty(0, dtype=bool), t, q_body)
-    model = _camera_model(camera)
+    model = camera_projection_model(camera)
     if model is not None:
         xy, star, inst, on_det = track_kernels.project_frame(catalog.vectors[cand], cand, r_cam_to_icrs, *model,
                                                              wdt, hgt, float(margin))
@@ -526,10 +527,10 @@ def prediction_radius_px(
     default k = 6 a true spot falls outside r with probability exp(-18) ≈ 1.5e-8.
     """
     for name, v in (("sigma_centroid_px", sigma_centroid_px), ("sigma_prediction_px", sigma_prediction_px), ("k_sigma", k_sigma)):
-        if not np.isfinite(v) or v < 0:
+        if not math.isfinite(v) or v < 0:
             raise ValueError(f"{name} must be finite and >= 0, got {v}")
-    r = k_sigma * float(np.hypot(sigma_centroid_px, sigma_prediction_px))
-    return float(np.clip(r, r_min_px, r_max_px))
+    r = k_sigma * math.hypot(sigma_centroid_px, sigma_prediction_px)
+    return float(min(max(r, r_min_px), r_max_px))
 
 
 # ------------------------------------------------------------------------ grouping into N attitudes
@@ -629,7 +630,7 @@ def attitudes_per_instant(
 
 def _solve_instants(obs, idx, prediction, camera, catalog, sigma_px, min_stars, outlier_k_sigma):
     """The work of :func:`attitudes_per_instant` on checked inputs (two kernel calls)."""
-    model = _camera_model(camera)
+    model = camera_projection_model(camera)
     if model is not None:
         v_body = track_kernels.unproject_to_body(obs, *model, camera.r_cam_to_body)
     elif len(obs):

@@ -19,11 +19,11 @@ from startracker.kernels.identify import (
     build_sky_grid,
     kvector_range,
     nearest_two,
-    quat_from_rotation,
     rotation_svd,
     select_matches,
     solve_attitude,
 )
+from startracker.kernels.algebra import quat_from_rotation
 from startracker.kvector import KVector
 from startracker.optics import camera_preset
 from startracker.rotations import quat_from_matrix, quat_random, quat_to_matrix

@@ -64,6 +64,21 @@ def test_quaternion_kernels_equal_public_functions(seed):
         _close(rk.quat_from_matrix(m[0]), rot.quat_from_matrix(m[0]))
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_relative_rotvec_kernel_is_conjugate_product_log(seed):
+    """One pass equals the three kernels it fuses bit for bit, and scipy's ``(R1⁻¹ R2).as_rotvec()``."""
+    rng = np.random.default_rng(seed)
+    for n in (1, 2, 7, 21):
+        q1 = _random_quats(rng, n)
+        scale = 10 ** rng.uniform(-9, 0.5)  # both sides of the small-angle branch
+        q2 = rot.quat_multiply(q1, rot.quat_from_rotvec(rng.normal(size=(n, 3)) * scale))
+        fused = rk.quat_relative_rotvec(q1, q2)
+        assert np.array_equal(fused, rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(q1), q2)))
+        assert np.array_equal(rk.quat_relative_rotvec(q1[0], q2), rk.quat_to_rotvec(rk.quat_multiply(rk.quat_conjugate(q1[0]), q2)))
+        ref = (Rotation.from_quat(q1[:, [1, 2, 3, 0]]).inv() * Rotation.from_quat(q2[:, [1, 2, 3, 0]])).as_rotvec()
+        np.testing.assert_allclose(fused, ref, rtol=1e-9, atol=1e-15)
+
+
 def test_matrix_kernel_on_each_shepperd_branch():
     """Half-turns about x, y, z and the identity select each of Shepperd's four branches."""
     for rv in ([np.pi, 0, 0], [0, np.pi, 0], [0, 0, np.pi], [0, 0, 0], [2.0, -1.0, 0.5]):

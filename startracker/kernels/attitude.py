@@ -16,14 +16,11 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["davenport_quaternion", "symmetric_min_eigenvalue", "solve_wahba_one", "solve_wahba_batch", "quat_to_rotation", "RAD_TO_ARCSEC"]
+from startracker.kernels.algebra import det3_entries, quat_to_rotation
+
+__all__ = ["davenport_quaternion", "symmetric_min_eigenvalue", "solve_wahba_one", "solve_wahba_batch", "RAD_TO_ARCSEC"]
 
 RAD_TO_ARCSEC = 180.0 / np.pi * 3600.0
-
-
-@njit(cache=True)
-def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
-    return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
 
 
 @njit(cache=True)
@@ -31,7 +28,7 @@ def _cofactor4(m, i, j):
     """Cofactor (i, j) of a 4×4 matrix: (-1)^(i+j) times the minor without row i and column j."""
     r0, r1, r2 = (1, 2, 3) if i == 0 else ((0, 2, 3) if i == 1 else ((0, 1, 3) if i == 2 else (0, 1, 2)))
     c0, c1, c2 = (1, 2, 3) if j == 0 else ((0, 2, 3) if j == 1 else ((0, 1, 3) if j == 2 else (0, 1, 2)))
-    d = _det3(m[r0, c0], m[r0, c1], m[r0, c2], m[r1, c0], m[r1, c1], m[r1, c2], m[r2, c0], m[r2, c1], m[r2, c2])
+    d = det3_entries(m[r0, c0], m[r0, c1], m[r0, c2], m[r1, c0], m[r1, c1], m[r1, c2], m[r2, c0], m[r2, c1], m[r2, c2])
     return -d if (i + j) % 2 else d
 
 
@@ -136,7 +133,7 @@ def symmetric_min_eigenvalue(a):
     if p2 == 0.0:
         return qm
     p = math.sqrt(p2 / 6.0)
-    rdet = _det3(d0 / p, a[0, 1] / p, a[0, 2] / p, a[1, 0] / p, d1 / p, a[1, 2] / p, a[2, 0] / p, a[2, 1] / p,
+    rdet = det3_entries(d0 / p, a[0, 1] / p, a[0, 2] / p, a[1, 0] / p, d1 / p, a[1, 2] / p, a[2, 0] / p, a[2, 1] / p,
                  d2 / p) / 2.0
     rdet = min(1.0, max(-1.0, rdet))
     phi = math.acos(rdet) / 3.0
@@ -198,7 +195,7 @@ def solve_wahba_one(b, r, w, m, q, cov, ang):
     ok = n_used >= 2 and symmetric_min_eigenvalue(info) > 1e-10 * max(wsum, 1e-300)
     rot = np.empty((3, 3))
     if ok:
-        det = _det3(info[0, 0], info[0, 1], info[0, 2], info[1, 0], info[1, 1], info[1, 2], info[2, 0], info[2, 1],
+        det = det3_entries(info[0, 0], info[0, 1], info[0, 2], info[1, 0], info[1, 1], info[1, 2], info[2, 0], info[2, 1],
                     info[2, 2])
         cov[0, 0] = (info[1, 1] * info[2, 2] - info[1, 2] * info[2, 1]) / det
         cov[0, 1] = (info[0, 2] * info[2, 1] - info[0, 1] * info[2, 2]) / det
@@ -230,21 +227,6 @@ def solve_wahba_one(b, r, w, m, q, cov, ang):
         else:
             ang[j] = -1.0
     return math.sqrt(ss / max(n_used, 1)) * RAD_TO_ARCSEC, ok
-
-
-@njit(cache=True)
-def quat_to_rotation(q, m):
-    """Rotation matrix ``m`` (3, 3, written in place) of the unit quaternion ``q`` (w, x, y, z)."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    m[0, 0] = 1 - 2 * (y * y + z * z)
-    m[0, 1] = 2 * (x * y - w * z)
-    m[0, 2] = 2 * (x * z + w * y)
-    m[1, 0] = 2 * (x * y + w * z)
-    m[1, 1] = 1 - 2 * (x * x + z * z)
-    m[1, 2] = 2 * (y * z - w * x)
-    m[2, 0] = 2 * (x * z - w * y)
-    m[2, 1] = 2 * (y * z + w * x)
-    m[2, 2] = 1 - 2 * (x * x + y * y)
 
 
 @njit(cache=True)

@@ -37,6 +37,7 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.algebra import det3, inv_transpose3, quat_from_rotation
 from startracker.kernels.optics import unproject_pinhole
 
 __all__ = [
@@ -44,8 +45,6 @@ __all__ = [
     "triple_product",
     "admissible",
     "window_count",
-    "det3",
-    "inv_transpose3",
     "cast_votes",
     "prepare_detections",
     "GRID_CELLS",
@@ -54,7 +53,6 @@ __all__ = [
     "nearest_two",
     "select_matches",
     "rotation_svd",
-    "quat_from_rotation",
     "solve_attitude",
     "solve_identified",
     "binom_tail",
@@ -227,29 +225,6 @@ def select_matches(dist, idx, chord):
 
 
 @njit(cache=True)
-def det3(m):
-    """Determinant of a 3×3 matrix."""
-    return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-            + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
-
-
-@njit(cache=True)
-def inv_transpose3(m, d):
-    """Inverse transpose of a 3×3 matrix with determinant ``d`` (the cofactor matrix over ``d``)."""
-    c = np.empty((3, 3))
-    c[0, 0] = (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) / d
-    c[0, 1] = (m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2]) / d
-    c[0, 2] = (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]) / d
-    c[1, 0] = (m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2]) / d
-    c[1, 1] = (m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0]) / d
-    c[1, 2] = (m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1]) / d
-    c[2, 0] = (m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]) / d
-    c[2, 1] = (m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]) / d
-    c[2, 2] = (m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]) / d
-    return c
-
-
-@njit(cache=True)
 def rotation_svd(b, r):
     """Unweighted Wahba rotation ``R`` with ``r ≈ R b`` (SVD, proper).
 
@@ -300,45 +275,6 @@ def rotation_svd(b, r):
             u[i, 2] = -u[i, 2]
         rot = u @ vt
     return rot
-
-
-@njit(cache=True)
-def quat_from_rotation(m):
-    """Quaternion (w, x, y, z), first non-zero component positive, of a proper rotation matrix (Shepperd).
-
-    Parameters
-    ----------
-    m : ndarray, shape (3, 3)
-
-    Returns
-    -------
-    ndarray, shape (4,)
-    """
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    big = max(max(tr, m[0, 0]), max(m[1, 1], m[2, 2]))
-    q = np.empty(4)
-    if big == tr:
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q[0], q[1], q[2], q[3] = 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s
-    elif big == m[0, 0]:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q[0], q[1], q[2], q[3] = (m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s
-    elif big == m[1, 1]:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q[0], q[1], q[2], q[3] = (m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q[0], q[1], q[2], q[3] = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s
-    nq = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    for i in range(4):
-        q[i] /= nq
-    for i in range(4):
-        if q[i] != 0.0:
-            if q[i] < 0:
-                for j in range(4):
-                    q[j] = -q[j]
-            break
-    return q
 
 
 @njit(cache=True)

@@ -24,6 +24,7 @@ __all__ = [
     "quat_normalize",
     "quat_conjugate",
     "quat_multiply",
+    "quat_relative_rotvec",
     "quat_to_matrix",
     "quat_rotate",
     "quat_from_rotvec",
@@ -155,6 +156,23 @@ def _to_rotvec_rows(q):
     for k in range(n):
         s = math.sqrt(q[k, 0] ** 2 + q[k, 1] ** 2 + q[k, 2] ** 2 + q[k, 3] ** 2)
         _log_into(q[k, 0] / s, q[k, 1] / s, q[k, 2] / s, q[k, 3] / s, out, k)
+    return out
+
+
+@njit(cache=True)
+def _relative_rotvec_rows(a, b):
+    """Rotation vector of ``conj(a) ⊗ b`` per row: the arithmetic of conjugate, product and log in turn."""
+    n = a.shape[0]
+    out = np.empty((n, 3))
+    for k in range(n):
+        w1, x1, y1, z1 = a[k, 0], -a[k, 1], -a[k, 2], -a[k, 3]
+        w2, x2, y2, z2 = b[k, 0], b[k, 1], b[k, 2], b[k, 3]
+        w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
+        x = w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2
+        y = w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2
+        z = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
+        s = math.sqrt(w**2 + x**2 + y**2 + z**2)
+        _log_into(w / s, x / s, y / s, z / s, out, k)
     return out
 
 
@@ -326,6 +344,13 @@ def quat_from_rotvec(rv: np.ndarray) -> np.ndarray:
 def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
     """Rotation vectors (..., 3), rad, angle in [0, π], of non-zero (..., 4) quaternions."""
     return _to_rotvec_rows(_rows(q, 4)).reshape(np.shape(q)[:-1] + (3,))
+
+
+def quat_relative_rotvec(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Rotation vector (..., 3), rad, of ``conj(q1) ⊗ q2`` (the body-frame rotation from attitude ``q1`` to ``q2``):
+    ``quat_to_rotvec(quat_multiply(quat_conjugate(q1), q2))`` bit for bit, in one compiled pass."""
+    a, b, shape = _pair_rows(q1, q2)
+    return _relative_rotvec_rows(a, b).reshape(shape[:-1] + (3,))
 
 
 def quat_integrate(q, omega_body, dt, alpha_body=None) -> np.ndarray:

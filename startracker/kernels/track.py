@@ -15,8 +15,10 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.algebra import quat_multiply_into, quat_normalize_canonical, quat_to_rotation
 from startracker.kernels.attitude import solve_wahba_one
 from startracker.kernels.kvector import kvector_fill
+from startracker.kernels.sensor import innovation_chi2_mean
 
 __all__ = [
     "propagate_attitudes",
@@ -29,46 +31,12 @@ __all__ = [
     "match_brute",
     "unproject_to_body",
     "solve_instants",
+    "track_frame",
     "prediction_sigma_px",
 ]
 
 
 # ------------------------------------------------------------------------------------------- prediction
-@njit(cache=True)
-def _quat_mul(a, b, out):
-    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
-    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
-    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
-    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
-
-
-@njit(cache=True)
-def _quat_normalize_canonical(q):
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    sign = 1.0
-    for i in range(4):
-        if q[i] != 0.0:
-            sign = 1.0 if q[i] > 0.0 else -1.0
-            break
-    for i in range(4):
-        q[i] = sign * q[i] / n
-
-
-@njit(cache=True)
-def _quat_to_matrix(q, m):
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    w, x, y, z = q[0] / n, q[1] / n, q[2] / n, q[3] / n
-    m[0, 0] = 1 - 2 * (y * y + z * z)
-    m[0, 1] = 2 * (x * y - w * z)
-    m[0, 2] = 2 * (x * z + w * y)
-    m[1, 0] = 2 * (x * y + w * z)
-    m[1, 1] = 1 - 2 * (x * x + z * z)
-    m[1, 2] = 2 * (y * z - w * x)
-    m[2, 0] = 2 * (x * z - w * y)
-    m[2, 1] = 2 * (y * z + w * x)
-    m[2, 2] = 1 - 2 * (x * x + y * y)
-
-
 @njit(cache=True)
 def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
     """Second-order attitude propagation to N instants and the camera's attitude there.
@@ -121,10 +89,10 @@ def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
         dq[1] = scale * rx
         dq[2] = scale * ry
         dq[3] = scale * rz
-        _quat_mul(q0, dq, q_body[i])
-        _quat_normalize_canonical(q_body[i])
-        _quat_mul(q_body[i], q_cam_to_body, qc)
-        _quat_to_matrix(qc, r[i])
+        quat_multiply_into(q0, dq, q_body[i])
+        quat_normalize_canonical(q_body[i])
+        quat_multiply_into(q_body[i], q_cam_to_body, qc)
+        quat_to_rotation(qc, r[i])
         for k in range(3):
             mid[k] += r[i, k, 2]
     nm = math.sqrt(mid[0] * mid[0] + mid[1] * mid[1] + mid[2] * mid[2])
@@ -631,6 +599,91 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
             if slot_q[i, s] >= 0 and not m[i, s]:
                 assign[slot_q[i, s]] = -1
     return q_out, cov, rms, n_used, ok, assign, n_out
+
+
+@njit(cache=True)
+def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy,
+                cos_rot, sin_rot, width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad, min_stars,
+                outlier_threshold_rad, t_exp, t_ref, cov_theta, cov_omega, cov_alpha):
+    """One tracking frame after the prediction's attitudes: projection, matching, N Wahba solutions, innovation.
+
+    :func:`project_frame` of the candidate stars (margin = the radius), :func:`dkvlut_build_match` (or
+    :func:`match_brute`), :func:`unproject_to_body`, :func:`solve_instants`, then
+    :func:`~startracker.kernels.sensor.innovation_chi2_mean` over the solved instants: the tracker's frame in
+    one call, with the lock tests' inputs as scalars.
+
+    Parameters
+    ----------
+    q_body : ndarray, shape (N, 4)
+        Predicted body attitudes at the instants (:func:`propagate_attitudes`).
+    r_cam_to_icrs : ndarray, shape (N, 3, 3)
+        Predicted camera attitudes.
+    cand : ndarray of int64, shape (S,)
+        Catalog rows of the candidate stars (cone search).
+    catalog_vectors : ndarray, shape (C, 3)
+    focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot : float
+        Camera model, as :func:`project_frame`.
+    width, height : int
+        Detector size, px.
+    obs : ndarray, shape (K, 2)
+        Detections, px.
+    radius_px : float
+        Star-neighbourhood radius (and the prediction's margin outside the detector), px.
+    brute : bool
+        Match by :func:`match_brute` instead of the DKVLUT (same answer).
+    r_cam_to_body : ndarray, shape (3, 3)
+    sigma_rad, min_stars, outlier_threshold_rad
+        As :func:`solve_instants`.
+    t_exp : ndarray, shape (N,)
+        Exposure instants, s.
+    t_ref : float
+        Time of the motion state the prediction starts from, s.
+    cov_theta, cov_omega, cov_alpha : ndarray, shape (3, 3)
+        The prediction's covariances, as :func:`~startracker.kernels.sensor.innovation_chi2_mean`.
+
+    Returns
+    -------
+    n_predicted : int
+        Predicted spots on the detector.
+    n_matched : int
+        Detections used by the solutions.
+    q, covariance_rad2, residual_rms_arcsec, n_stars, ok
+        Per instant, as :func:`solve_instants`.
+    nis : float
+        Mean innovation χ² of the solved instants (0.0 when none).
+    """
+    n_inst = t_exp.shape[0]
+    n_c = cand.shape[0]
+    v = np.empty((n_c, 3))
+    for j in range(n_c):
+        for a in range(3):
+            v[j, a] = catalog_vectors[cand[j], a]
+    xy, star, inst, on_det = project_frame(v, cand, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx,
+                                           ppy, cos_rot, sin_rot, width, height, radius_px)
+    n_pred = 0
+    for j in range(on_det.shape[0]):
+        if on_det[j]:
+            n_pred += 1
+    k_n = obs.shape[0]
+    if xy.shape[0] == 0 or k_n == 0:
+        idx = np.full(k_n, -1, dtype=np.int64)
+    elif brute:
+        idx = match_brute(xy, obs, radius_px)
+    else:
+        idx = dkvlut_build_match(xy, obs, radius_px)
+    v_body = unproject_to_body(obs, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot,
+                               r_cam_to_body)
+    q, cov, rms, n_used, ok, assign, _ = solve_instants(obs, v_body, idx, xy, inst, star, catalog_vectors, n_inst,
+                                                        sigma_rad, min_stars, outlier_threshold_rad)
+    n_matched = 0
+    for j in range(k_n):
+        if assign[j] >= 0:
+            n_matched += 1
+    sel = np.flatnonzero(ok)
+    nis = 0.0
+    if sel.shape[0]:
+        nis = innovation_chi2_mean(q_body[sel], q[sel], cov[sel], t_exp[sel] - t_ref, cov_theta, cov_omega, cov_alpha)
+    return n_pred, n_matched, q, cov, rms, n_used, ok, nis
 
 
 @njit(cache=True)

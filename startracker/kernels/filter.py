@@ -321,15 +321,19 @@ def _rotate_by(q, rx, ry, rz):
 
 
 @njit(cache=True)
-def _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2):
+def _propagate(q, b, P, w_gyro, rate_noise, dt, sigma_v, sigma_u, phi, qd, m1, m2):
     wx, wy, wz = w_gyro[0] - b[0], w_gyro[1] - b[1], w_gyro[2] - b[2]
     _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd)
+    # extra angle random walk on the axes whose reading is unreliable (a saturated gyro)
+    qd[0, 0] += rate_noise[0] * dt
+    qd[1, 1] += rate_noise[1] * dt
+    qd[2, 2] += rate_noise[2] * dt
     _rotate_by(q, wx * dt, wy * dt, wz * dt)
     _predict_model_cov_into(P, phi, qd, m1, m2)
 
 
 @njit(cache=True)
-def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last):
+def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last, rate_noise):
     """One frame of the MEKF: gyro intervals and attitude samples in time order, sequential updates.
 
     Gyro sample ``g`` is the rate over ``(tg[g-1], tg[g]]`` (the first from ``t_s``). Each attitude sample is
@@ -367,6 +371,10 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
         Output: Φ and Q of the last propagation (unchanged when there was none).
     z_last : ndarray, shape (3,)
         Output: innovation of the last sample (unchanged when M = 0).
+    rate_noise : ndarray, shape (G, 3)
+        Extra angle-random-walk variance density of each gyro interval per body axis, rad²/s, added to the attitude
+        block of Q as ``rate_noise · dt``: zero for a healthy reading, the square of the rate uncertainty for an
+        axis whose reading is saturated (its true rate is unknown beyond the reading).
 
     Returns
     -------
@@ -401,17 +409,17 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
             w_gyro = wg[g]
             dt = tg[g] - t
             if dt > 0.0:
-                _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2)
+                _propagate(q, b, P, w_gyro, rate_noise[g], dt, sigma_v, sigma_u, phi, qd, m1, m2)
                 n_prop += 1
                 t = tg[g]
             g += 1
         if last:
             break
-        if g < n_g:
-            w_gyro = wg[g]
+        gi = g if g < n_g else n_g - 1
+        w_gyro = wg[gi]
         dt = t_next - t
         if dt > 0.0:
-            _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2)
+            _propagate(q, b, P, w_gyro, rate_noise[gi], dt, sigma_v, sigma_u, phi, qd, m1, m2)
             n_prop += 1
             t = t_next
         z0, z1, z2 = _residual(q[0], q[1], q[2], q[3], qm[i, 0], qm[i, 1], qm[i, 2], qm[i, 3])

@@ -109,6 +109,11 @@ class AttitudeEKF:
         ``ekf.Q`` (last process noise), ``ekf.R`` (last measurement covariance), ``ekf.y`` (last residual).
     n_updates, n_rejected : int
         Accepted and gated-out attitude samples.
+    last_nis : ndarray, shape (M,)
+        Normalised innovation squared of each sample of the last :meth:`process` call against the filter just
+        before it (3 dof), accepted or not.
+    last_innovation_rad, last_innovation_cov_rad2 : ndarray, shape (M, 3) and (M, 3, 3)
+        Those samples' innovations and their covariances ``S``.
     """
 
     def __init__(
@@ -149,6 +154,9 @@ class AttitudeEKF:
         self._omega_gyro_last = np.zeros(3)
         self.n_updates = 0
         self.n_rejected = 0
+        self.last_nis = np.zeros(0)
+        self.last_innovation_rad = np.zeros((0, 3))
+        self.last_innovation_cov_rad2 = np.zeros((0, 3, 3))
 
         self.ekf = ExtendedKalmanFilter(dim_x=6, dim_z=3)
         self.ekf.x = np.zeros((6, 1))
@@ -414,14 +422,18 @@ class AttitudeEKF:
         b = np.array(self.bias_rad_s, dtype=np.float64)
         P = np.array(self.ekf.P, dtype=np.float64)
         accepted = np.empty(m, dtype=np.bool_)
+        nis = np.empty(m)
+        zs = np.empty((m, 3))
+        ss = np.empty((m, 3, 3))
         phi = np.empty((6, 6))
         qd = np.empty((6, 6))
         z = np.empty(3)
         t, n_acc, n_prop = kf.fuse_frame(
             q, b, P, float(self.t_s), wg, tg, qm, tm, rs, self.sigma_v, self.sigma_u,
             math.inf if self.gate_chi2 is None else self.gate_chi2, accepted, phi, qd, z,
-            np.zeros((len(tg), 3)) if rate_noise is None else rate_noise,
+            np.zeros((len(tg), 3)) if rate_noise is None else rate_noise, nis, zs, ss,
         )
+        self.last_nis, self.last_innovation_rad, self.last_innovation_cov_rad2 = nis, zs, ss
         self.n_updates += n_acc
         self.n_rejected += m - n_acc
         self.q_body_to_icrs = q
@@ -476,6 +488,10 @@ class DelayedFusion:
         End of the last gyro interval, s (the time of :meth:`current`).
     n_stale : int
         Samples rejected because they arrived after a later one had been fused.
+    last_nis : ndarray, shape (M,)
+        Normalised innovation squared of each sample of the last :meth:`fuse` (NaN for stale ones).
+    last_innovation_rad, last_innovation_cov_rad2 : ndarray, shape (F, 3) and (F, 3, 3)
+        Innovations and their covariances of the fresh samples of the last :meth:`fuse`.
     """
 
     def __init__(self, horizon_s: float):
@@ -483,6 +499,9 @@ class DelayedFusion:
         self.ekf: AttitudeEKF | None = None
         self.t_s = -math.inf
         self.n_stale = 0
+        self.last_nis = np.zeros(0)
+        self.last_innovation_rad = np.zeros((0, 3))
+        self.last_innovation_cov_rad2 = np.zeros((0, 3, 3))
         self._tg = np.zeros(0)
         self._wg = np.zeros((0, 3))
         self._rn = np.zeros((0, 3))
@@ -545,6 +564,9 @@ class DelayedFusion:
         """
         m = len(t_meas_s)
         accepted = np.zeros(m, dtype=bool)
+        self.last_nis = np.full(m, np.nan)
+        self.last_innovation_rad = np.zeros((0, 3))
+        self.last_innovation_cov_rad2 = np.zeros((0, 3, 3))
         if m == 0:
             return accepted
         if self.ekf is None:
@@ -568,6 +590,9 @@ class DelayedFusion:
             acc = self.ekf.process(wg, np.array([t_last]), q_meas_body_to_icrs, t_meas_s, covariance_rad2,
                                    validate=False)
             accepted[fresh] = acc
+            self.last_nis[fresh] = self.ekf.last_nis
+            self.last_innovation_rad = self.ekf.last_innovation_rad
+            self.last_innovation_cov_rad2 = self.ekf.last_innovation_cov_rad2
             self._now = None
             return accepted
         tg = self._tg[: j + 1].copy()
@@ -575,6 +600,9 @@ class DelayedFusion:
         acc = self.ekf.process(self._wg[: j + 1], tg, q_meas_body_to_icrs, t_meas_s, covariance_rad2,
                                rate_noise_rad2_s=self._rn[: j + 1], validate=False)
         accepted[fresh] = acc
+        self.last_nis[fresh] = self.ekf.last_nis
+        self.last_innovation_rad = self.ekf.last_innovation_rad
+        self.last_innovation_cov_rad2 = self.ekf.last_innovation_cov_rad2
         self._keep_from(j if self._tg[j] > t_last else j + 1)
         self._now = None
         return accepted
@@ -603,7 +631,8 @@ class DelayedFusion:
             if len(self._tg):
                 kf.fuse_frame(q, b, P, float(ekf.t_s), self._wg, self._tg, np.zeros((0, 4)), np.zeros(0),
                               np.zeros((0, 3, 3)), ekf.sigma_v, ekf.sigma_u, math.inf, np.zeros(0, dtype=np.bool_),
-                              np.empty((6, 6)), np.empty((6, 6)), np.empty(3), self._rn)
+                              np.empty((6, 6)), np.empty((6, 6)), np.empty(3), self._rn, np.empty(0),
+                              np.empty((0, 3)), np.empty((0, 3, 3)))
                 omega = self._wg[-1] - b
                 t = float(self._tg[-1])
             else:

@@ -127,6 +127,20 @@ SATURATED_RATE_SIGMA_RAD_S = float(np.radians(30.0))
 ESTIMATE_VALID_SIGMA_RAD = float(np.radians(1.0))
 # Longest a sample may take to reach the filter (processing delay); gyro intervals older than this are folded in.
 FUSION_HORIZON_S = 1.0
+# Innovation monitor: the filter's normalised innovations over its last deliveries (at most this many) are summed and
+# tested against χ²(3 n) at this false-alarm probability; a failure voids the estimate's validity and opens the bias
+# covariance (a gyro bias that moved, a time-tag error), as a restart would, without giving up the attitude.
+MONITOR_DELIVERIES = 10
+MONITOR_RECOVERY_DELIVERIES = 5  # after an alarm, the estimate is valid again once this many deliveries pass
+MONITOR_FALSE_ALARM_P = 1e-4
+_MONITOR_Z = 3.7190164854556804  # the standard normal quantile at 1 - MONITOR_FALSE_ALARM_P
+MONITOR_MEAN_CHI2_3 = chi2_3_threshold(MONITOR_FALSE_ALARM_P)
+
+
+def _chi2_quantile_wilson_hilferty(dof: float, z: float) -> float:
+    """χ²(dof) quantile at the standard-normal quantile ``z`` (Wilson-Hilferty; within 1 % for dof >= 3 here)."""
+    c = 2.0 / (9.0 * dof)
+    return dof * (1.0 - c + z * math.sqrt(c)) ** 3
 
 
 @dataclass(frozen=True)
@@ -440,6 +454,9 @@ class StarTrackerUnit:
         self._n_confidently_wrong_estimates = 0
         self._rejected_frames = 0
         self._filter_resets = 0
+        self._monitor: list[tuple] = []  # (Σ NIS, samples, Σ innovation, Σ its covariance) of the last deliveries
+        self._inconsistent = False
+        self._monitor_alarms = 0
         self._t_lock_lost = None
         self._reacquisition_s: list[float] = []
         self._pending: list[tuple] = []  # (t_delivery_s, times, quats, covs, wrong flags) per frame, in order
@@ -621,6 +638,7 @@ class StarTrackerUnit:
             first = 1
         # what the filter's checks demand holds by construction (sorted, finite, unit, SPD from Wahba)
         accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
+        self.last_nis = self.fusion.last_nis
         if accepted.any():
             self._t_accepted = max(self._t_accepted, float(tm[accepted][-1]))
         n_wrong = int(np.count_nonzero(wrong))
@@ -629,6 +647,7 @@ class StarTrackerUnit:
         self._n_confidently_wrong += n_confident
         stats["n_wrong_samples"] += n_wrong
         stats["n_confidently_wrong_samples"] += n_confident
+        self._monitor_innovations()
         # Persistent innovation: the tracker keeps reporting attitudes the filter gates out (a gyro bias jump the
         # filter does not believe). After three such deliveries in a row, restart from the tracker's last sample,
         # keep the bias estimate, and open its covariance so the filter can learn the new bias.
@@ -644,6 +663,35 @@ class StarTrackerUnit:
                 self._t_accepted = float(tm[-1])
                 self._rejected_frames = 0
                 self._filter_resets += 1
+
+    def _monitor_innovations(self) -> None:
+        """Innovation test over the last deliveries: on failure, void the estimate's validity and open the bias
+        covariance so that the filter relearns the bias; valid again once :data:`MONITOR_RECOVERY_DELIVERIES`
+        deliveries since have passed."""
+        nis = self.fusion.last_nis
+        nis = nis[np.isfinite(nis)]
+        if len(nis) == 0:
+            return
+        self._monitor.append((float(np.sum(nis)), len(nis), self.fusion.last_innovation_rad.sum(axis=0),
+                              self.fusion.last_innovation_cov_rad2.sum(axis=0)))
+        del self._monitor[:-MONITOR_DELIVERIES]
+        total = sum(m[0] for m in self._monitor)
+        n = sum(m[1] for m in self._monitor)
+        # the spread of the innovations (their NIS summed, χ²(3n)) and their mean (a bias drags them one way:
+        # (Σz)ᵀ (ΣS)⁻¹ (Σz) is χ²(3) for a white innovation sequence, √n times more sensitive to a steady offset)
+        z_sum = sum(m[2] for m in self._monitor)
+        s_sum = sum(m[3] for m in self._monitor)
+        mean_test = float(z_sum @ np.linalg.solve(s_sum, z_sum))
+        if total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_test > MONITOR_MEAN_CHI2_3:
+            ekf = self.fusion.ekf
+            p_bb = np.diag(ekf.P[3:, 3:])
+            ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))
+            self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
+            self._monitor.clear()
+            self._inconsistent = True
+            self._monitor_alarms += 1
+        elif self._inconsistent and len(self._monitor) >= MONITOR_RECOVERY_DELIVERIES:
+            self._inconsistent = False
 
     @property
     def n_wrong_samples_total(self) -> int:
@@ -794,7 +842,7 @@ class StarTrackerUnit:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
         q, _, P, omega, t_s = self.fusion.current()
         sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
-        valid = (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0
+        valid = (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0 and not self._inconsistent
                  and self._t_saturated < self._t_accepted)
         return Estimate(q.copy(), omega.copy(), sig, valid, P[:3, :3].copy())
 

@@ -333,7 +333,8 @@ def _propagate(q, b, P, w_gyro, rate_noise, dt, sigma_v, sigma_u, phi, qd, m1, m
 
 
 @njit(cache=True)
-def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last, rate_noise):
+def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last, rate_noise,
+               nis_out, z_out, s_out):
     """One frame of the MEKF: gyro intervals and attitude samples in time order, sequential updates.
 
     Gyro sample ``g`` is the rate over ``(tg[g-1], tg[g]]`` (the first from ``t_s``). Each attitude sample is
@@ -375,6 +376,13 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
         Extra angle-random-walk variance density of each gyro interval per body axis, rad²/s, added to the attitude
         block of Q as ``rate_noise · dt``: zero for a healthy reading, the square of the rate uncertainty for an
         axis whose reading is saturated (its true rate is unknown beyond the reading).
+    nis_out : ndarray, shape (M,)
+        Output: normalised innovation squared ``zᵀ S⁻¹ z`` of each sample against the filter just before it (3 dof:
+        χ²(3) for a consistent filter), whether or not the gate accepted it.
+    z_out : ndarray, shape (M, 3)
+        Output: each sample's innovation ``z`` (rotation vector, rad).
+    s_out : ndarray, shape (M, 3, 3)
+        Output: its covariance ``S = P_θθ + R`` (rad²).
 
     Returns
     -------
@@ -434,6 +442,11 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
             + (z0 * s_inv[0, 1] + z1 * s_inv[1, 1] + z2 * s_inv[2, 1]) * z1
             + (z0 * s_inv[0, 2] + z1 * s_inv[1, 2] + z2 * s_inv[2, 2]) * z2
         )
+        nis_out[i] = nis
+        z_out[i, 0], z_out[i, 1], z_out[i, 2] = z0, z1, z2
+        for a in range(3):
+            for c in range(3):
+                s_out[i, a, c] = s[a, c]
         if nis > gate_chi2:
             accepted[i] = False
             continue

@@ -506,6 +506,10 @@ class DelayedFusion:
         self._wg = np.zeros((0, 3))
         self._rn = np.zeros((0, 3))
         self._now = None
+        # the propagation-only kernel call's fixed arguments, built once
+        self._no_samples = (np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3)))
+        self._scratch = (np.zeros(0, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3))
+        self._no_outputs = (np.empty(0), np.empty((0, 3)), np.empty((0, 3, 3)))
 
     def start(self, ekf: AttitudeEKF) -> None:
         """Use ``ekf`` (a new filter at its own time) from now on; the buffered intervals after its time are kept."""
@@ -571,8 +575,12 @@ class DelayedFusion:
             return accepted
         if self.ekf is None:
             raise RuntimeError("start(ekf) before fuse()")
-        fresh = t_meas_s >= self.ekf.t_s
-        n_fresh = int(np.count_nonzero(fresh))
+        if t_meas_s[0] >= self.ekf.t_s:  # in time order: all fresh (the usual case)
+            fresh = slice(None)
+            n_fresh = m
+        else:
+            fresh = t_meas_s >= self.ekf.t_s
+            n_fresh = int(np.count_nonzero(fresh))
         self.n_stale += m - n_fresh
         if n_fresh == 0:
             return accepted
@@ -629,10 +637,8 @@ class DelayedFusion:
             b = np.array(ekf.bias_rad_s, dtype=np.float64)
             P = np.array(ekf.P, dtype=np.float64)
             if len(self._tg):
-                kf.fuse_frame(q, b, P, float(ekf.t_s), self._wg, self._tg, np.zeros((0, 4)), np.zeros(0),
-                              np.zeros((0, 3, 3)), ekf.sigma_v, ekf.sigma_u, math.inf, np.zeros(0, dtype=np.bool_),
-                              np.empty((6, 6)), np.empty((6, 6)), np.empty(3), self._rn, np.empty(0),
-                              np.empty((0, 3)), np.empty((0, 3, 3)))
+                kf.fuse_frame(q, b, P, float(ekf.t_s), self._wg, self._tg, *self._no_samples, ekf.sigma_v,
+                              ekf.sigma_u, math.inf, *self._scratch, self._rn, *self._no_outputs)
                 omega = self._wg[-1] - b
                 t = float(self._tg[-1])
             else:

@@ -47,6 +47,7 @@ from startracker.catalog import StarCatalog, load_catalog
 from startracker.filter import AttitudeEKF, DelayedFusion
 from startracker.head import HEAD_CAMERAS, make_head
 from startracker.imu import GYRO_GRADES, Gyro, gyro_preset
+from startracker.kernels import filter as filter_kernels
 from startracker.kernels import rotations as rk
 from startracker.kernels import sensor as sensor_kernels
 from startracker.multifov import MultiFovSensor
@@ -454,7 +455,11 @@ class StarTrackerUnit:
         self._n_confidently_wrong_estimates = 0
         self._rejected_frames = 0
         self._filter_resets = 0
-        self._monitor: list[tuple] = []  # (Σ NIS, samples, Σ innovation, Σ its covariance) of the last deliveries
+        # ring of the last deliveries: Σ NIS, samples, Σ innovation, Σ its covariance
+        self._monitor = (np.zeros(MONITOR_DELIVERIES), np.zeros(MONITOR_DELIVERIES), np.zeros((MONITOR_DELIVERIES, 3)),
+                         np.zeros((MONITOR_DELIVERIES, 3, 3)))
+        self._monitor_slot = 0
+        self._monitor_filled = 0
         self._inconsistent = False
         self._monitor_alarms = 0
         self._t_lock_lost = None
@@ -510,20 +515,19 @@ class StarTrackerUnit:
             self.gyro_spec, q_body_to_icrs, sigma_attitude_rad=max(3 * sig, 1e-5), t_s=t_s, gate_chi2=30.0,
         )
 
-    def _rate_noise(self, omega_meas: np.ndarray, own_gyro: bool) -> np.ndarray | None:
-        """Extra process noise (G, 3), rad²/s, on the gyro axes whose reading is saturated; None when none is.
+    def _rate_noise(self, omega_meas: np.ndarray, own_gyro: bool):
+        """Extra process noise (G, 3), rad²/s, on the gyro axes whose reading is saturated, and the index of the last
+        saturated sample; (None, -1) when none is.
 
         A reading is saturated at the gyro's range, or, from the unit's own gyro when it has noise, when it repeats
         the previous reading bit for bit (a clip below the range: noise never repeats a float64 value; rates a
         user hands in may well repeat). Its true rate is unknown beyond the reading:
         :data:`SATURATED_RATE_SIGMA_RAD_S`, squared, enters the attitude process noise."""
-        sat = np.abs(omega_meas) >= self.gyro_spec.max_rate_rad_s
-        if own_gyro and self.gyro_spec.arw_rad_sqrt_s > 0.0:
-            sat[0] |= omega_meas[0] == self._omega_gyro
-            sat[1:] |= omega_meas[1:] == omega_meas[:-1]
-        if not sat.any():
-            return None
-        return np.where(sat, SATURATED_RATE_SIGMA_RAD_S**2, 0.0)
+        out = np.empty((len(omega_meas), 3))
+        last = filter_kernels.saturated_rate_noise(
+            np.ascontiguousarray(omega_meas, dtype=np.float64), self._omega_gyro, float(self.gyro_spec.max_rate_rad_s),
+            own_gyro and self.gyro_spec.arw_rad_sqrt_s > 0.0, SATURATED_RATE_SIGMA_RAD_S**2, out)
+        return (None, -1) if last < 0 else (out, last)
 
     # ------------------------------------------------------------------ one span of truth
     def observe(self, times_s, q_body_to_icrs, rng: np.random.Generator, omega_gyro=None) -> None:
@@ -562,7 +566,7 @@ class StarTrackerUnit:
                 omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
         else:
             omega_meas = omega_gyro
-        rate_noise = self._rate_noise(omega_meas, omega_gyro is None)
+        rate_noise, last_saturated = self._rate_noise(omega_meas, omega_gyro is None)
 
         samples = []
         stats = _empty_stats()
@@ -604,15 +608,30 @@ class StarTrackerUnit:
         self._omega_gyro = omega_meas[-1].copy()
         self.fusion.add_gyro(omega_meas, times[1:], rate_noise)
         if rate_noise is not None:
-            self._t_saturated = float(times[1:][np.any(rate_noise > 0.0, axis=1)][-1])
+            self._t_saturated = float(times[1 + last_saturated])
         self._deliver(float(times[-1]), stats)
         stats["filter_restarts"] = self._filter_resets
-        est = self.estimate()
-        wrong_est, confident_est = judge_estimate(est, quats[-1])
+        wrong_est, confident_est = self._judge_estimate_now(quats[-1])
         stats["estimate_wrong"], stats["estimate_confidently_wrong"] = wrong_est, confident_est
         self._n_wrong_estimates += wrong_est
         self._n_confidently_wrong_estimates += confident_est
         self.last_stats = stats
+
+    def _judge_estimate_now(self, q_true) -> tuple[bool, bool]:
+        """:func:`judge_estimate` of :meth:`estimate`, on the filter's own arrays (no copies)."""
+        if self.fusion.ekf is None:
+            return False, False
+        q, _, P, _, _ = self.fusion.current()
+        nis = sensor_kernels.consistency_nis(q_true.reshape(1, 4), q.reshape(1, 4),
+                                             np.ascontiguousarray(P[:3, :3]).reshape(1, 3, 3))
+        wrong = bool(nis[0] > VERDICT_CHI2_3)
+        return wrong, wrong and self._estimate_valid(P)
+
+    def _estimate_valid(self, P) -> bool:
+        """The estimate's validity flag (see :class:`Estimate`)."""
+        sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
+        return (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0 and not self._inconsistent
+                and self._t_saturated < self._t_accepted)
 
     def _deliver(self, t_now: float, stats: dict) -> None:
         """Fuse the frames whose processing is over by ``t_now``, and count their verdicts into ``stats``."""
@@ -622,10 +641,10 @@ class StarTrackerUnit:
         if n_due == 0:
             return
         due, self._pending = self._pending[:n_due], self._pending[n_due:]
-        tm = np.concatenate([d[1] for d in due])
-        qm = np.concatenate([d[2] for d in due])
-        cm = np.concatenate([d[3] for d in due])
-        wrong = np.concatenate([d[4] for d in due])
+        if n_due == 1:
+            _, tm, qm, cm, wrong = due[0]
+        else:
+            tm, qm, cm, wrong = (np.concatenate([d[i] for d in due]) for i in range(1, 5))
         if len(tm) > 1 and np.any(tm[1:] < tm[:-1]):  # several heads: merge into time order (stable)
             order = np.argsort(tm, kind="stable")
             tm, qm, cm, wrong = tm[order], qm[order], cm[order], wrong[order]
@@ -667,30 +686,31 @@ class StarTrackerUnit:
     def _monitor_innovations(self) -> None:
         """Innovation test over the last deliveries: on failure, void the estimate's validity and open the bias
         covariance so that the filter relearns the bias; valid again once :data:`MONITOR_RECOVERY_DELIVERIES`
-        deliveries since have passed."""
-        nis = self.fusion.last_nis
-        nis = nis[np.isfinite(nis)]
-        if len(nis) == 0:
+        deliveries since have passed.
+
+        Two statistics of the window (:func:`startracker.kernels.filter.innovation_window`): the spread, Σ NIS
+        against χ²(3 n), and the mean, (Σz)ᵀ (ΣS)⁻¹ (Σz) against χ²(3): a bias drags the innovations one way, and
+        the mean sees a steady offset √n times sooner than the spread."""
+        fusion = self.fusion
+        if len(fusion.last_innovation_rad) == 0:
             return
-        self._monitor.append((float(np.sum(nis)), len(nis), self.fusion.last_innovation_rad.sum(axis=0),
-                              self.fusion.last_innovation_cov_rad2.sum(axis=0)))
-        del self._monitor[:-MONITOR_DELIVERIES]
-        total = sum(m[0] for m in self._monitor)
-        n = sum(m[1] for m in self._monitor)
-        # the spread of the innovations (their NIS summed, χ²(3n)) and their mean (a bias drags them one way:
-        # (Σz)ᵀ (ΣS)⁻¹ (Σz) is χ²(3) for a white innovation sequence, √n times more sensitive to a steady offset)
-        z_sum = sum(m[2] for m in self._monitor)
-        s_sum = sum(m[3] for m in self._monitor)
-        mean_test = float(z_sum @ np.linalg.solve(s_sum, z_sum))
-        if total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_test > MONITOR_MEAN_CHI2_3:
-            ekf = self.fusion.ekf
+        ring = self._monitor
+        total, n, mean_chi2 = filter_kernels.innovation_window(
+            fusion.last_nis, fusion.last_innovation_rad, fusion.last_innovation_cov_rad2, *ring,
+            self._monitor_slot)
+        self._monitor_slot = (self._monitor_slot + 1) % MONITOR_DELIVERIES
+        self._monitor_filled += 1
+        if total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3:
+            ekf = fusion.ekf
             p_bb = np.diag(ekf.P[3:, 3:])
             ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))
-            self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
-            self._monitor.clear()
+            fusion.start(ekf)  # its state changed: the estimate now is recomputed
+            for a in ring:
+                a[:] = 0.0
+            self._monitor_filled = 0
             self._inconsistent = True
             self._monitor_alarms += 1
-        elif self._inconsistent and len(self._monitor) >= MONITOR_RECOVERY_DELIVERIES:
+        elif self._inconsistent and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES:
             self._inconsistent = False
 
     @property
@@ -842,9 +862,7 @@ class StarTrackerUnit:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
         q, _, P, omega, t_s = self.fusion.current()
         sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
-        valid = (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0 and not self._inconsistent
-                 and self._t_saturated < self._t_accepted)
-        return Estimate(q.copy(), omega.copy(), sig, valid, P[:3, :3].copy())
+        return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(P), P[:3, :3].copy())
 
     def render_last_frame(self) -> np.ndarray | None:
         """RGB uint8 image (rows, cols, 3) of the last frame of the first head, detections boxed; None before a

@@ -20,7 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame"]
+__all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
+           "innovation_window", "saturated_rate_noise"]
 
 
 @njit(cache=True)
@@ -481,3 +482,114 @@ def quat_advance(q, rotvec):
     out = q.copy()
     _rotate_by(out, rotvec[0], rotvec[1], rotvec[2])
     return out
+
+
+@njit(cache=True)
+def innovation_window(nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot):
+    """Store one delivery's innovation sums in a ring and return the window's two consistency statistics.
+
+    Parameters
+    ----------
+    nis : ndarray, shape (M,)
+        Normalised innovation squared of each sample of the delivery (NaN: not fused; skipped).
+    z : ndarray, shape (F, 3)
+        Innovations of the fused samples, rad.
+    s : ndarray, shape (F, 3, 3)
+        Their covariances ``S``, rad².
+    ring_nis, ring_n : ndarray, shape (K,)
+        Per-delivery sums of NIS and sample counts (0 marks an empty slot); slot ``slot`` is overwritten.
+    ring_z : ndarray, shape (K, 3)
+        Per-delivery sums of innovations.
+    ring_s : ndarray, shape (K, 3, 3)
+        Per-delivery sums of their covariances.
+    slot : int
+        Slot to write, in [0, K).
+
+    Returns
+    -------
+    nis_total : float
+        Σ NIS over the window: χ²(3 n) for a consistent filter.
+    n : float
+        Samples in the window.
+    mean_chi2 : float
+        ``(Σ z)ᵀ (Σ S)⁻¹ (Σ z)``: χ²(3) for a white innovation sequence (0 for an empty window).
+    """
+    total = 0.0
+    count = 0.0
+    for i in range(nis.shape[0]):
+        if nis[i] == nis[i]:
+            total += nis[i]
+            count += 1.0
+    ring_nis[slot] = total
+    ring_n[slot] = count
+    for a in range(3):
+        acc = 0.0
+        for i in range(z.shape[0]):
+            acc += z[i, a]
+        ring_z[slot, a] = acc
+        for c in range(3):
+            acc = 0.0
+            for i in range(s.shape[0]):
+                acc += s[i, a, c]
+            ring_s[slot, a, c] = acc
+    nis_total = 0.0
+    n = 0.0
+    zs = np.zeros(3)
+    ss = np.zeros((3, 3))
+    for k in range(ring_n.shape[0]):
+        if ring_n[k] > 0.0:
+            nis_total += ring_nis[k]
+            n += ring_n[k]
+            for a in range(3):
+                zs[a] += ring_z[k, a]
+                for c in range(3):
+                    ss[a, c] += ring_s[k, a, c]
+    if n == 0.0:
+        return nis_total, n, 0.0
+    s_inv = np.empty((3, 3))
+    _inv3_sym_into(ss, s_inv)
+    mean_chi2 = 0.0
+    for a in range(3):
+        for c in range(3):
+            mean_chi2 += zs[a] * s_inv[a, c] * zs[c]
+    return nis_total, n, mean_chi2
+
+
+@njit(cache=True)
+def saturated_rate_noise(omega, omega_prev, limit_rad_s, check_repeat, noise_rad2_s, out):
+    """Extra process noise of the gyro axes whose reading is saturated.
+
+    An axis of sample ``g`` is saturated when ``|ω| >= limit_rad_s``, or, with ``check_repeat``, when it equals the
+    previous sample's reading bit for bit (a clip below the range; a noisy gyro never repeats a value).
+
+    Parameters
+    ----------
+    omega : ndarray, shape (G, 3)
+        Gyro readings, rad/s.
+    omega_prev : ndarray, shape (3,)
+        The reading before ``omega[0]``, rad/s.
+    limit_rad_s : float
+        The gyro's range, rad/s.
+    check_repeat : bool
+        Flag repeated readings too.
+    noise_rad2_s : float
+        Angle-random-walk variance density given to a saturated axis, rad²/s.
+    out : ndarray, shape (G, 3)
+        Output: ``noise_rad2_s`` on saturated axes, 0 elsewhere.
+
+    Returns
+    -------
+    int
+        Index of the last sample with a saturated axis, -1 when none is.
+    """
+    last = -1
+    for g in range(omega.shape[0]):
+        for a in range(3):
+            w = omega[g, a]
+            prev = omega_prev[a] if g == 0 else omega[g - 1, a]
+            if abs(w) >= limit_rad_s or (check_repeat and w == prev):
+                out[g, a] = noise_rad2_s
+                last = g
+            else:
+                out[g, a] = 0.0
+    return last

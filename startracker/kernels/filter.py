@@ -10,7 +10,10 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
 - :func:`attitude_residual`: the innovation ``z`` of an attitude sample; :func:`quat_advance`: ``q ⊗ exp(r)``;
 - :func:`fuse_frame`: a whole frame (gyro intervals and attitude samples in time order, sequential updates
   with the innovation gate and the multiplicative reset after each one), the per-frame path of
-  :meth:`startracker.filter.AttitudeEKF.process`.
+  :meth:`startracker.filter.AttitudeEKF.process` (its extra ``rate_noise`` is the process noise of saturated gyro
+  axes; it also returns each sample's innovation, its covariance and NIS);
+- :func:`saturated_rate_noise`: which gyro readings are saturated, and the process noise they get;
+- :func:`innovation_window`: the innovation monitor's window statistics (spread and mean of the innovations).
 """
 
 from __future__ import annotations

@@ -657,7 +657,6 @@ class StarTrackerUnit:
             first = 1
         # what the filter's checks demand holds by construction (sorted, finite, unit, SPD from Wahba)
         accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
-        self.last_nis = self.fusion.last_nis
         if accepted.any():
             self._t_accepted = max(self._t_accepted, float(tm[accepted][-1]))
         n_wrong = int(np.count_nonzero(wrong))

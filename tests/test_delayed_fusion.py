@@ -127,3 +127,22 @@ def test_samples_reach_the_filter_their_latency_after_the_frame(latency_ms):
     assert sum(produced) >= 10 and produced[-1] > 0
     # what the filter took in each span is what the tracker produced `delay` spans earlier (no gate rejections)
     assert fused[delay:] == produced[: len(produced) - delay]
+
+
+def test_env_takes_a_processor_and_reports_its_latency():
+    """processor= as a model, a dict of its fields or a fixed latency in ms; info["matching_latency_ms"] is the
+    model's figure for the frame (the same on every run); anything else is refused naming the argument."""
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+
+    for proc, expected in ((ProcessorModel.fixed(12.5), 12.5), ({"readout_ms": 12.5, "identify_ms": 0.0,
+                           "overhead_ms": 0.0, "centroid_ms_per_detection": 0.0, "match_ms_per_detection": 0.0,
+                           "solve_ms_per_instant": 0.0}, 12.5), (7.0, 7.0)):
+        env = gym.make("startracker/AttitudeHold-v0", processor=proc).unwrapped
+        env.reset(seed=0)
+        info = env.step(np.zeros(env.action_space.shape, np.float32))[4]
+        assert info["matching_latency_ms"] == expected
+        env.close()
+    with pytest.raises(TypeError, match="processor"):
+        gym.make("startracker/AttitudeHold-v0", processor="fast")

@@ -47,7 +47,7 @@ def run(seed, fidelity, gyro_grade, angle_deg=150.0, processor=None, rate_hz=10.
         d = quat_to_rotvec(quat_multiply(quat_conjugate(info["q_est"]), info["q_true"]))
         rows.append((info["time_s"], np.degrees(np.linalg.norm(info["omega_true_body"])), info["update_rate_hz"],
                      np.hypot(d[0], d[1]) * ARCSEC, abs(d[2]) * ARCSEC, info["tracker_mode"], info["lost_lock_events"],
-                     info["matching_latency_ms"]))
+                     info["matching_latency_ms"], info["estimate_valid"]))
         done = te or tr
     settle_s = rows[-1][0] - env.unwrapped.settle_hold_s if te else np.nan
     env.close()
@@ -55,7 +55,9 @@ def run(seed, fidelity, gyro_grade, angle_deg=150.0, processor=None, rate_hz=10.
     upd = np.array([r[2] for r in rows])
     cross = np.array([r[3] for r in rows])
     roll = np.array([r[4] for r in rows])
-    track = np.array([r[5] == "track" for r in rows])
+    # errors over the steps the tracker tracks and the estimate is valid (the first step after the teleport to q0
+    # above is neither: its estimate still belongs to reset's attitude and says so)
+    track = np.array([r[5] == "track" and r[8] for r in rows])
     fast = rate > 19.0
     return dict(
         update_fast=float(np.median(upd[fast])) if fast.any() else np.nan,

@@ -607,8 +607,12 @@ class DelayedFusion:
         tg[j] = t_last
         acc = self.ekf.process(self._wg[: j + 1], tg, q_meas_body_to_icrs, t_meas_s, covariance_rad2,
                                rate_noise_rad2_s=self._rn[: j + 1], validate=False)
-        accepted[fresh] = acc
-        self.last_nis[fresh] = self.ekf.last_nis
+        if n_fresh == m:  # the usual case: the filter's own arrays, no masking
+            accepted = acc
+            self.last_nis = self.ekf.last_nis
+        else:
+            accepted[fresh] = acc
+            self.last_nis[fresh] = self.ekf.last_nis
         self.last_innovation_rad = self.ekf.last_innovation_rad
         self.last_innovation_cov_rad2 = self.ekf.last_innovation_cov_rad2
         self._keep_from(j if self._tg[j] > t_last else j + 1)

@@ -1,7 +1,11 @@
 """Fault matrix: every fault at several severities over many seeds, in AttitudeHold and during a slew.
 
-For each (fault, severity): wrong attitudes reported as valid (target 0), re-acquisition time (median, p99),
-attitude error during and after the fault, EKF NEES (mean 3 when consistent), share of frames in track.
+For each (fault, severity), the verdicts (an attitude is *wrong* when its true error fails the χ²(3) test on its own
+covariance, at false-alarm probability 1e-9; *confidently wrong* when it is also flagged valid): wrong and confidently
+wrong tracker samples (valid: the filter accepted it), wrong and confidently wrong estimates (one verdict per step;
+valid: the estimate's own flag), all targets 0 for the confident ones; then the re-acquisition time (median, p99),
+the attitude error during and after the fault, the EKF NEES (mean 3 when consistent; valid steps) and the share of
+frames in track.
 
     python benchmarks/bench_fault_matrix.py [--quick] [--seeds N]
 """
@@ -21,6 +25,7 @@ import gymnasium as gym  # noqa: E402
 import envs  # noqa: E402,F401
 
 T0, DUR, AFTER = 3.0, 3.0, 6.0
+VERDICT_KEYS = ("wrong_samples", "confidently_wrong_samples", "wrong_estimates", "confidently_wrong_estimates")
 
 MATRIX = [
     ("none", [None]),
@@ -53,9 +58,13 @@ def run_one(kind, severity, seed, task):
     env.close()
     dur = [i for i in rows if T0 <= i["time_s"] <= T0 + DUR]
     aft = [i for i in rows if i["time_s"] > T0 + DUR + 2.0]
-    nees = [i["ekf_nees"] for i in rows if i["ekf_nees"] is not None]
+    nees = [i["ekf_nees"] for i in rows if i["ekf_nees"] is not None and i["estimate_valid"]]
+    last = rows[-1]
     return dict(
-        wrong=rows[-1]["n_wrong_samples_total"],
+        wrong_samples=last["n_wrong_samples_total"],
+        confidently_wrong_samples=last["n_confidently_wrong_samples_total"],
+        wrong_estimates=last["n_wrong_estimates_total"],
+        confidently_wrong_estimates=last["n_confidently_wrong_estimates_total"],
         reacq=rows[-1]["reacquisition_times_s"],
         err_during=float(np.median([i["attitude_error_arcsec"] for i in dur])) if dur else np.nan,
         err_after=float(np.median([i["attitude_error_arcsec"] for i in aft])) if aft else np.nan,
@@ -68,14 +77,20 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--seeds", type=int, default=None)
+    ap.add_argument("--task", choices=("hold", "slew", "both"), default=None)
+    ap.add_argument("--faults", nargs="*", default=None, help="only these fault kinds (and 'none')")
     args = ap.parse_args()
     n_seeds = args.seeds or (2 if args.quick else 10)
     tasks = ["startracker/AttitudeHold-v0"] if args.quick else ["startracker/AttitudeHold-v0", "startracker/AgileSlew-v0"]
+    if args.task is not None:
+        tasks = {"hold": ["startracker/AttitudeHold-v0"], "slew": ["startracker/AgileSlew-v0"],
+                 "both": ["startracker/AttitudeHold-v0", "startracker/AgileSlew-v0"]}[args.task]
+    matrix = [(k, s) for k, s in MATRIX if args.faults is None or k in args.faults or k == "none"]
     try:
         from tqdm import tqdm
     except ImportError:
         tqdm = None
-    jobs = [(t, k, s) for t in tasks for k, sevs in MATRIX for s in sevs]
+    jobs = [(t, k, s) for t in tasks for k, sevs in matrix for s in sevs]
     it = tqdm(jobs, desc="fault matrix", unit="cell") if tqdm else jobs
     rows = []
     for task, kind, sev in it:
@@ -83,7 +98,8 @@ def main():
         reacq = [x for r in res for x in r["reacq"]]
         rows.append(dict(
             task=task.split("/")[1].split("-")[0], fault=kind, severity="-" if sev is None else f"{sev:g}",
-            runs=len(res), wrong=int(sum(r["wrong"] for r in res)),
+            runs=len(res),
+            **{k: int(sum(r[k] for r in res)) for k in VERDICT_KEYS},
             reacq_med_s=float(np.median(reacq)) if reacq else np.nan,
             reacq_p99_s=float(np.percentile(reacq, 99)) if reacq else np.nan,
             err_during_arcsec=float(np.nanmedian([r["err_during"] for r in res])),
@@ -97,7 +113,7 @@ def main():
     print("|" + "---|" * len(keys))
     for r in rows:
         print("| " + " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in r.values()) + " |")
-    print(f"total wrong attitudes reported as valid: {sum(r['wrong'] for r in rows)}")
+    print("totals: " + ", ".join(f"{k} {sum(r[k] for r in rows)}" for k in VERDICT_KEYS))
 
 
 if __name__ == "__main__":

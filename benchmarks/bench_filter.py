@@ -87,12 +87,13 @@ def bench_frame(m: int, rng, n_inner: int, repeats: int) -> dict:
 
     q, b, P = q0.copy(), b0.copy(), p0.copy()
     acc, phi, qd, z = np.empty(m, dtype=bool), np.empty((6, 6)), np.empty((6, 6)), np.empty(3)
+    rate_noise, nis, zs, ss = np.zeros((len(tg), 3)), np.empty(m), np.empty((m, 3)), np.empty((m, 3, 3))
 
     def run_kernel():
         q[:] = q0
         b[:] = b0
         P[:] = p0
-        kf.fuse_frame(q, b, P, 0.0, wg, tg, qm, tm, cov, SV, SU, GATE, acc, phi, qd, z)
+        kf.fuse_frame(q, b, P, 0.0, wg, tg, qm, tm, cov, SV, SU, GATE, acc, phi, qd, z, rate_noise, nis, zs, ss)
 
     ref = ExtendedKalmanFilter(dim_x=6, dim_z=3)
 

@@ -2,13 +2,19 @@
 
 * ``startracker/AgileSlew-v0``: random large-angle slews to a target attitude.
 * ``startracker/AttitudeHold-v0``: hold an inertial target under a disturbance torque.
+
+``gymnasium.make`` wraps each in :class:`envs.wrappers.WallClockLatency`, which adds this machine's wall-clock
+matching time to ``info``; the environment itself (``env.unwrapped``) reports only what the seed and the actions
+determine.
 """
 
-from gymnasium.envs.registration import register, registry
+from gymnasium.envs.registration import WrapperSpec, register, registry
 
 ENV_IDS = ("startracker/AgileSlew-v0", "startracker/AttitudeHold-v0")
-# info entries measured on the wall clock of this machine: reported, never fed back, so not bit-for-bit repeatable
-WALL_CLOCK_INFO_KEYS = ("matching_latency_ms", "matching_latency_ms_per_head", "latency_breakdown_ms")
+# info entries measured on the wall clock of this machine, added by the WallClockLatency wrapper: reported, never
+# fed back, so not bit-for-bit repeatable (the raw environment has none)
+WALL_CLOCK_INFO_KEYS = ("matching_wall_clock_ms", "matching_wall_clock_ms_per_head", "wall_clock_breakdown_ms")
+WALL_CLOCK_WRAPPER = WrapperSpec("WallClockLatency", "envs.wrappers:WallClockLatency", {})
 
 if ENV_IDS[0] not in registry:
     register(
@@ -16,6 +22,7 @@ if ENV_IDS[0] not in registry:
         entry_point="envs.agile_slew:AgileSlewEnv",
         kwargs={"task": "slew"},
         max_episode_steps=None,
+        additional_wrappers=(WALL_CLOCK_WRAPPER,),
     )
 if ENV_IDS[1] not in registry:
     register(
@@ -23,6 +30,7 @@ if ENV_IDS[1] not in registry:
         entry_point="envs.agile_slew:AgileSlewEnv",
         kwargs={"task": "hold", "max_episode_s": 60.0},
         max_episode_steps=None,
+        additional_wrappers=(WALL_CLOCK_WRAPPER,),
     )
 
-__all__ = ["ENV_IDS", "WALL_CLOCK_INFO_KEYS"]
+__all__ = ["ENV_IDS", "WALL_CLOCK_INFO_KEYS", "WALL_CLOCK_WRAPPER"]

@@ -9,9 +9,9 @@ import gymnasium as gym
 from gymnasium import spaces
 
 from envs.avionics import Avionics, AvionicsConfig, TRACKER_MODES
-from startracker.onboard import UnitConfig
 from envs.faults import Fault, FaultSchedule, random_fault_schedule
 from envs.spacecraft import Spacecraft
+from startracker.onboard import ProcessorModel, UnitConfig
 from startracker.rotations import quat_from_rotvec, quat_integrate, quat_multiply, quat_normalize, quat_random
 from startracker.kernels import rotations as rk
 
@@ -34,10 +34,13 @@ class AgileSlewEnv(gym.Env):
     * a multiplicative EKF (filterpy) that fuses every attitude sample at its exposure timestamp with the gyro.
 
     ``info`` reports what the star tracker achieved: the attitude update rate (``update_rate_hz``: distinct attitude
-    instants per second, two heads exposed at once count once; ``update_rate_hz_per_head``) and the star-matching
-    latency (``matching_latency_ms``: wall clock of one frame's prediction, matching, grouping by instant, N Wahba
-    solutions and lock tests, summed over the heads, lost-in-space identification apart;
-    ``matching_latency_ms_per_head``, ``latency_breakdown_ms``), as well as the true and estimated attitudes.
+    instants per second, two heads exposed at once count once; ``update_rate_hz_per_head``), the processing latency
+    (``matching_latency_ms``, from the tracker's processor model: deterministic; ``matching_latency_ms_per_head``),
+    the true and estimated attitudes, and the verdicts on the tracker's samples and the filter's estimate (wrong: the
+    error fails a χ²(3) test on its own covariance; confidently wrong: and flagged valid). ``gymnasium.make``'s
+    ``WallClockLatency`` wrapper adds this machine's wall clock of one frame's prediction, matching, grouping by
+    instant, N Wahba solutions and lock tests (``matching_wall_clock_ms``, ``matching_wall_clock_ms_per_head``,
+    ``wall_clock_breakdown_ms``).
 
     The task ``"hold"`` (id ``startracker/AttitudeHold-v0``) keeps an inertial target under a disturbance torque.
 
@@ -114,6 +117,7 @@ class AgileSlewEnv(gym.Env):
     | ``w_pointing``, ``w_effort``, ``w_settle`` | 1, 0.01, 1 | reward weights |
     | ``faults`` | () | fault schedule: ``envs.faults.Fault`` objects or dicts ``{kind, t_start_s, duration_s, severity}`` |
     | ``random_faults_per_min`` | 0 | random faults (Poisson) drawn at each reset, for soak runs |
+    | ``processor`` | ``ProcessorModel()`` | the tracker's processing budget (``startracker.processor.ProcessorModel``, a dict of its fields, or a fixed latency in ms): each frame's samples reach the filter that long after the frame ends; ``info["matching_latency_ms"]`` is this modelled latency |
     | ``render_mode`` | None | ``"rgb_array"``: the last star image with detections marked |
 
     ## Version History
@@ -155,6 +159,7 @@ class AgileSlewEnv(gym.Env):
         w_settle: float = 1.0,
         faults=None,
         random_faults_per_min: float = 0.0,
+        processor=None,
         render_mode: str | None = None,
     ):
         if task not in ("slew", "hold"):
@@ -181,6 +186,15 @@ class AgileSlewEnv(gym.Env):
         if not np.isfinite(random_faults_per_min) or random_faults_per_min < 0:
             raise ValueError(f"random_faults_per_min must be >= 0, got {random_faults_per_min!r}")
         self.random_faults_per_min = float(random_faults_per_min)
+        if processor is None:
+            processor = ProcessorModel()
+        elif isinstance(processor, dict):
+            processor = ProcessorModel(**processor)
+        elif isinstance(processor, (int, float)) and not isinstance(processor, bool):
+            processor = ProcessorModel.fixed(float(processor))
+        if not isinstance(processor, ProcessorModel):
+            raise TypeError(f"processor must be a ProcessorModel, a dict of its fields, a latency in ms or None, "
+                            f"got {type(processor).__name__}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         if disturbance_torque_Nm is None:
@@ -224,6 +238,7 @@ class AgileSlewEnv(gym.Env):
                 n_heads=n_heads,
                 head_separation_deg=head_separation_deg,
                 keep_images=render_mode == "rgb_array",
+                processor=processor,
             )
         )
         # the values in use of the arguments the camera spec decides (None above: the spec's), for provenance
@@ -266,6 +281,21 @@ class AgileSlewEnv(gym.Env):
     def q_target_body_to_icrs(self) -> np.ndarray:
         return self._q_target.copy()
 
+    @property
+    def matching_wall_clock_ms(self) -> float:
+        """This machine's wall clock of the last step's prediction and matching, ms: a measurement of the computer,
+        kept out of ``info`` (the ``envs.wrappers.WallClockLatency`` wrapper reports it)."""
+        return float(self.avionics.last_stats["matching_wall_clock_ms"])
+
+    @property
+    def wall_clock_info(self) -> dict:
+        """The last step's wall-clock figures (``envs.WALL_CLOCK_INFO_KEYS``), ms: the total, per head, and by stage
+        (``predict_match``, ``group_solve_test``, ``identify``)."""
+        st = self.avionics.last_stats
+        return {"matching_wall_clock_ms": float(st["matching_wall_clock_ms"]),
+                "matching_wall_clock_ms_per_head": list(st["matching_wall_clock_ms_per_head"]),
+                "wall_clock_breakdown_ms": dict(st["wall_clock_breakdown_ms"])}
+
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -288,7 +318,7 @@ class AgileSlewEnv(gym.Env):
             w0 = rng.normal(size=3) * np.radians(0.05)
         if "q_target" in options:
             self._q_target = quat_normalize(options["q_target"])
-        self.spacecraft.set_state(q0, w0, np.zeros(self.spacecraft.n_wheels), time_s=0.0)
+        self.spacecraft.reset(q0, w0, np.zeros(self.spacecraft.n_wheels), time_s=0.0)
         if self.disturbance_torque_Nm > 0:
             d = rng.normal(size=3)
             self._disturbance_world = d / np.linalg.norm(d) * self.disturbance_torque_Nm
@@ -412,7 +442,6 @@ class AgileSlewEnv(gym.Env):
             "update_rate_hz_per_head": list(stats["update_rate_hz_per_head"]),
             "matching_latency_ms": stats["matching_latency_ms"],
             "matching_latency_ms_per_head": list(stats["matching_latency_ms_per_head"]),
-            "latency_breakdown_ms": dict(stats["latency_breakdown_ms"]),
             "tracker_mode": self.avionics.tracker_mode,
             "n_stars": stats["n_stars"],
             "exposures_per_frame": stats["exposures_per_frame"],
@@ -422,6 +451,12 @@ class AgileSlewEnv(gym.Env):
             "n_wrong_samples": stats["n_wrong_samples"],
             "filter_restarts": stats["filter_restarts"],
             "n_wrong_samples_total": self.avionics.n_wrong_samples_total,
+            "n_confidently_wrong_samples": stats["n_confidently_wrong_samples"],
+            "n_confidently_wrong_samples_total": self.avionics.n_confidently_wrong_samples_total,
+            "estimate_wrong": stats["estimate_wrong"],
+            "estimate_confidently_wrong": stats["estimate_confidently_wrong"],
+            "n_wrong_estimates_total": self.avionics.n_wrong_estimates_total,
+            "n_confidently_wrong_estimates_total": self.avionics.n_confidently_wrong_estimates_total,
             "reacquisition_times_s": self.avionics.reacquisition_times_s,
             "attitude_sigma_arcsec": math.degrees(min(float(est.attitude_sigma_rad), math.pi)) * 3600.0,
             "ekf_nees": self._nees(q_true, est),

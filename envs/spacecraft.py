@@ -433,6 +433,35 @@ class Spacecraft:
         self.data.qvel[self._sl_omega] = w
         mujoco.mj_forward(self.model, self.data)
 
+    def reset(self, q_body_to_icrs, omega_body, wheel_speeds_rad_s=None, time_s: float = 0.0) -> None:
+        """Start afresh: MuJoCo's data back to the model's defaults (wheel angles, commands, external torque,
+        solver warm start), then :meth:`set_state`.
+
+        What :meth:`set_state` keeps (wheel angles, the held torque command, the disturbance torque, MuJoCo's
+        warm start and activations) changes the arithmetic of the next substeps in the last bits, so a second
+        episode from the same state would not repeat the first bit for bit; after this call it does.
+
+        Parameters
+        ----------
+        q_body_to_icrs : array_like, shape (4,)
+            Attitude (w, x, y, z); normalised here.
+        omega_body : array_like, shape (3,)
+            Bus angular velocity, body frame, rad/s.
+        wheel_speeds_rad_s : array_like, shape (n_wheels,), optional
+            Wheel speeds relative to the bus, rad/s. Default: at rest.
+        time_s : float
+            Simulation time, s. Default 0.
+        """
+        ws = np.zeros(self._n) if wheel_speeds_rad_s is None else wheel_speeds_rad_s
+        saved = self.get_state()
+        mujoco.mj_resetData(self.model, self.data)
+        self._torque_cmd[:] = 0.0
+        try:
+            self.set_state(q_body_to_icrs, omega_body, ws, time_s=time_s)
+        except (TypeError, ValueError):
+            self.restore_state(saved)  # bad input leaves the spacecraft as it was
+            raise
+
     def apply_wheel_torque(self, torque_Nm) -> np.ndarray:
         """Command motor torques, held until the next call.
 

@@ -51,7 +51,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from startracker.kernels import filter as kf
 from startracker.validation import as_float_array, check_positive
 
-__all__ = ["AttitudeEKF", "ARW_FLOOR_RAD_SQRT_S", "BIAS_SIGMA_FLOOR_RAD_S"]
+__all__ = ["AttitudeEKF", "DelayedFusion", "ARW_FLOOR_RAD_SQRT_S", "BIAS_SIGMA_FLOOR_RAD_S"]
 
 _H = np.hstack([np.eye(3), np.zeros((3, 3))])
 _METHODS = ("auto", "sequential")
@@ -109,6 +109,11 @@ class AttitudeEKF:
         ``ekf.Q`` (last process noise), ``ekf.R`` (last measurement covariance), ``ekf.y`` (last residual).
     n_updates, n_rejected : int
         Accepted and gated-out attitude samples.
+    last_nis : ndarray, shape (M,)
+        Normalised innovation squared of each sample of the last :meth:`process` call against the filter just
+        before it (3 dof), accepted or not.
+    last_innovation_rad, last_innovation_cov_rad2 : ndarray, shape (M, 3) and (M, 3, 3)
+        Those samples' innovations and their covariances ``S``.
     """
 
     def __init__(
@@ -149,6 +154,9 @@ class AttitudeEKF:
         self._omega_gyro_last = np.zeros(3)
         self.n_updates = 0
         self.n_rejected = 0
+        self.last_nis = np.zeros(0)
+        self.last_innovation_rad = np.zeros((0, 3))
+        self.last_innovation_cov_rad2 = np.zeros((0, 3, 3))
 
         self.ekf = ExtendedKalmanFilter(dim_x=6, dim_z=3)
         self.ekf.x = np.zeros((6, 1))
@@ -330,7 +338,7 @@ class AttitudeEKF:
     # ------------------------------------------------------------------ frame path
     def process(
         self, omega_gyro, t_gyro_s, q_meas_body_to_icrs, t_meas_s, covariance_rad2, method: str = "auto", *,
-        validate: bool = True,
+        rate_noise_rad2_s=None, validate: bool = True,
     ) -> np.ndarray:
         """Fuse a frame's gyro samples and attitude samples in time order, in one compiled call.
 
@@ -354,6 +362,10 @@ class AttitudeEKF:
         method : {"auto", "sequential"}
             Both run the sequential update. ``"batch"`` (a one-solve update of all M samples) was removed: the
             compiled sequential update is cheaper for every M a frame carries; passing it raises ValueError.
+        rate_noise_rad2_s : array_like, shape (G, 3), optional
+            Extra angle-random-walk variance density of each gyro interval per body axis, rad²/s (>= 0), added to
+            the attitude process noise as ``rate_noise · dt``: the square of the rate uncertainty of an axis whose
+            reading is saturated. Default zero.
         validate : bool
             False skips the checks, for a caller passing C-contiguous float64 arrays that meet them:
             ``omega_gyro`` (G, 3),
@@ -373,8 +385,13 @@ class AttitudeEKF:
                 )
             raise ValueError(f"method must be 'sequential' or 'auto', got {method!r}")
         if not validate:
-            return self._fuse(omega_gyro, t_gyro_s, q_meas_body_to_icrs, t_meas_s, covariance_rad2)
+            return self._fuse(omega_gyro, t_gyro_s, q_meas_body_to_icrs, t_meas_s, covariance_rad2, rate_noise_rad2_s)
         wg = as_float_array(omega_gyro, "omega_gyro", last_dim=3).reshape(-1, 3)
+        if rate_noise_rad2_s is not None:
+            rate_noise_rad2_s = as_float_array(rate_noise_rad2_s, "rate_noise_rad2_s", last_dim=3).reshape(-1, 3)
+            if len(rate_noise_rad2_s) != len(wg) or np.any(~(rate_noise_rad2_s >= 0.0)):
+                raise ValueError(f"rate_noise_rad2_s must have shape ({len(wg)}, 3) and be >= 0")
+            rate_noise_rad2_s = np.ascontiguousarray(rate_noise_rad2_s)
         tg = as_float_array(t_gyro_s, "t_gyro_s").reshape(-1)
         if len(tg) != len(wg) or len(tg) == 0:
             raise ValueError(f"t_gyro_s must have one time per omega_gyro row ({len(wg)}), got {len(tg)}")
@@ -395,9 +412,9 @@ class AttitudeEKF:
             raise ValueError("q_meas_body_to_icrs contains a zero quaternion")
         qm = qm / norms[:, None]
         # one memory layout for the kernel (broadcast or strided inputs would each compile a variant)
-        return self._fuse(*(np.ascontiguousarray(a) for a in (wg, tg, qm, tm, rs)))
+        return self._fuse(*(np.ascontiguousarray(a) for a in (wg, tg, qm, tm, rs)), rate_noise_rad2_s)
 
-    def _fuse(self, wg, tg, qm, tm, rs) -> np.ndarray:
+    def _fuse(self, wg, tg, qm, tm, rs, rate_noise=None) -> np.ndarray:
         """The work of :meth:`process` on checked inputs: one :func:`~startracker.kernels.filter.fuse_frame` call."""
         m = len(qm)
         # the kernel works in place on fresh float64 copies (no caller's array changes behind its back)
@@ -405,13 +422,18 @@ class AttitudeEKF:
         b = np.array(self.bias_rad_s, dtype=np.float64)
         P = np.array(self.ekf.P, dtype=np.float64)
         accepted = np.empty(m, dtype=np.bool_)
+        nis = np.empty(m)
+        zs = np.empty((m, 3))
+        ss = np.empty((m, 3, 3))
         phi = np.empty((6, 6))
         qd = np.empty((6, 6))
         z = np.empty(3)
         t, n_acc, n_prop = kf.fuse_frame(
             q, b, P, float(self.t_s), wg, tg, qm, tm, rs, self.sigma_v, self.sigma_u,
             math.inf if self.gate_chi2 is None else self.gate_chi2, accepted, phi, qd, z,
+            np.zeros((len(tg), 3)) if rate_noise is None else rate_noise, nis, zs, ss,
         )
+        self.last_nis, self.last_innovation_rad, self.last_innovation_cov_rad2 = nis, zs, ss
         self.n_updates += n_acc
         self.n_rejected += m - n_acc
         self.q_body_to_icrs = q
@@ -430,3 +452,207 @@ class AttitudeEKF:
     def __repr__(self) -> str:
         sig = np.degrees(self.attitude_sigma_rad) * 3600.0
         return f"AttitudeEKF(t_s={self.t_s:.3f}, sigma_arcsec={np.round(sig, 2).tolist()}, updates={self.n_updates})"
+
+
+class DelayedFusion:
+    """An :class:`AttitudeEKF` that takes attitude samples late: processing delay without approximation.
+
+    A star tracker's sample reaches the filter some time after its exposure instant (the processor's latency),
+    while the gyro streams in on time. The method is *filter recalculation*, the exact one (Larsen et al.,
+    "Incorporation of time delayed measurements in a discrete-time Kalman filter", CDC 1998): the filter
+    :attr:`ekf` is held at the time of its last attitude sample, the gyro intervals since then are buffered, and
+
+    - a sample that arrives late is fused at its exposure instant: :attr:`ekf` is propagated through the buffered
+      intervals up to that instant (the interval covering it split there), updated, and the intervals before it
+      leave the buffer;
+    - the estimate *now* (:meth:`current`) is :attr:`ekf` propagated through the buffer, recomputed when it is asked
+      for after a change.
+
+    With samples arriving in time order (a tracker's output port delivers frames in order), this is the same
+    sequence of operations as fusing each sample at its instant with no delay, so the posterior is the same
+    (to rounding) whatever the delay, and the cost is one propagation of the buffer per query. A state-history
+    rollback would serve samples out of order too; a tracker does not produce those. Samples older than
+    :attr:`ekf`'s time are stale and rejected. Intervals older than ``horizon_s`` are folded into :attr:`ekf`
+    (no sample can be that late).
+
+    Parameters
+    ----------
+    horizon_s : float
+        Longest delay a sample may have, s (> 0): gyro intervals older than this are folded into the filter.
+
+    Attributes
+    ----------
+    ekf : AttitudeEKF or None
+        The filter at the time of its last sample (or of the last folded interval); None before :meth:`start`.
+    t_s : float
+        End of the last gyro interval, s (the time of :meth:`current`).
+    n_stale : int
+        Samples rejected because they arrived after a later one had been fused.
+    last_nis : ndarray, shape (M,)
+        Normalised innovation squared of each sample of the last :meth:`fuse` (NaN for stale ones).
+    last_innovation_rad, last_innovation_cov_rad2 : ndarray, shape (F, 3) and (F, 3, 3)
+        Innovations and their covariances of the fresh samples of the last :meth:`fuse`.
+    """
+
+    def __init__(self, horizon_s: float):
+        self.horizon_s = check_positive(horizon_s, "horizon_s")
+        self.ekf: AttitudeEKF | None = None
+        self.t_s = -math.inf
+        self.n_stale = 0
+        self.last_nis = np.zeros(0)
+        self.last_innovation_rad = np.zeros((0, 3))
+        self.last_innovation_cov_rad2 = np.zeros((0, 3, 3))
+        self._tg = np.zeros(0)
+        self._wg = np.zeros((0, 3))
+        self._rn = np.zeros((0, 3))
+        self._now = None
+        # the propagation-only kernel call's fixed arguments, built once
+        self._no_samples = (np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3)))
+        self._scratch = (np.zeros(0, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3))
+        self._no_outputs = (np.empty(0), np.empty((0, 3)), np.empty((0, 3, 3)))
+
+    def start(self, ekf: AttitudeEKF) -> None:
+        """Use ``ekf`` (a new filter at its own time) from now on; the buffered intervals after its time are kept."""
+        if not isinstance(ekf, AttitudeEKF):
+            raise TypeError(f"ekf must be an AttitudeEKF, got {type(ekf).__name__}")
+        self.ekf = ekf
+        self._drop_before(ekf.t_s)
+        self._now = None
+
+    def add_gyro(self, omega_gyro, t_gyro_s, rate_noise_rad2_s=None) -> None:
+        """Append gyro intervals ``(t_gyro_s[g-1], t_gyro_s[g]]`` (float64, C-contiguous, after :attr:`t_s`).
+
+        Parameters
+        ----------
+        omega_gyro : ndarray, shape (G, 3)
+            Measured rates, rad/s.
+        t_gyro_s : ndarray, shape (G,)
+            End of each interval, s, strictly increasing.
+        rate_noise_rad2_s : ndarray, shape (G, 3), optional
+            Extra angle-random-walk variance density per interval and axis, rad²/s (see
+            :meth:`AttitudeEKF.process`). Default zero.
+        """
+        g = len(t_gyro_s)
+        if g == 0:
+            return
+        rn = np.zeros((g, 3)) if rate_noise_rad2_s is None else rate_noise_rad2_s
+        self._tg = np.concatenate([self._tg, t_gyro_s])
+        self._wg = np.concatenate([self._wg, omega_gyro])
+        self._rn = np.concatenate([self._rn, rn])
+        self.t_s = float(self._tg[-1])
+        self._now = None
+        old = self.t_s - self.horizon_s
+        n_old = int(np.searchsorted(self._tg, old, side="right"))
+        if n_old == 0:
+            return
+        if self.ekf is not None and self._tg[n_old - 1] > self.ekf.t_s:
+            k = n_old
+            empty = np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3))
+            self.ekf.process(self._wg[:k], self._tg[:k], *empty, rate_noise_rad2_s=self._rn[:k], validate=False)
+        self._keep_from(n_old)
+
+    def fuse(self, q_meas_body_to_icrs, t_meas_s, covariance_rad2) -> np.ndarray:
+        """Fuse attitude samples (time order, unit quaternions, SPD covariances, float64) at their exposure instants.
+
+        Parameters
+        ----------
+        q_meas_body_to_icrs : ndarray, shape (M, 4)
+        t_meas_s : ndarray, shape (M,)
+            Exposure instants, s, non-decreasing, at most :attr:`t_s`.
+        covariance_rad2 : ndarray, shape (M, 3, 3)
+
+        Returns
+        -------
+        ndarray of bool, shape (M,)
+            Which samples the filter accepted (stale ones and those its innovation gate rejected are False).
+        """
+        m = len(t_meas_s)
+        accepted = np.zeros(m, dtype=bool)
+        self.last_nis = np.full(m, np.nan)
+        self.last_innovation_rad = np.zeros((0, 3))
+        self.last_innovation_cov_rad2 = np.zeros((0, 3, 3))
+        if m == 0:
+            return accepted
+        if self.ekf is None:
+            raise RuntimeError("start(ekf) before fuse()")
+        if t_meas_s[0] >= self.ekf.t_s:  # in time order: all fresh (the usual case)
+            fresh = slice(None)
+            n_fresh = m
+        else:
+            fresh = t_meas_s >= self.ekf.t_s
+            n_fresh = int(np.count_nonzero(fresh))
+        self.n_stale += m - n_fresh
+        if n_fresh == 0:
+            return accepted
+        if n_fresh < m:
+            q_meas_body_to_icrs, t_meas_s, covariance_rad2 = (
+                q_meas_body_to_icrs[fresh], t_meas_s[fresh], covariance_rad2[fresh])
+        t_last = float(t_meas_s[-1])
+        # the buffered intervals up to the last sample, the one covering it split at its instant
+        j = int(np.searchsorted(self._tg, t_last, side="left"))
+        if j == len(self._tg):
+            if t_last > self.ekf.t_s:
+                raise ValueError(f"t_meas_s must not be later than the last gyro interval ({self.t_s}), got {t_last}")
+            # all samples at the filter's own instant and nothing buffered: an update without propagation
+            wg = (np.asarray(self.ekf.omega_body, dtype=np.float64) + self.ekf.bias_rad_s).reshape(1, 3)
+            acc = self.ekf.process(wg, np.array([t_last]), q_meas_body_to_icrs, t_meas_s, covariance_rad2,
+                                   validate=False)
+            accepted[fresh] = acc
+            self.last_nis[fresh] = self.ekf.last_nis
+            self.last_innovation_rad = self.ekf.last_innovation_rad
+            self.last_innovation_cov_rad2 = self.ekf.last_innovation_cov_rad2
+            self._now = None
+            return accepted
+        tg = self._tg[: j + 1].copy()
+        tg[j] = t_last
+        acc = self.ekf.process(self._wg[: j + 1], tg, q_meas_body_to_icrs, t_meas_s, covariance_rad2,
+                               rate_noise_rad2_s=self._rn[: j + 1], validate=False)
+        if n_fresh == m:  # the usual case: the filter's own arrays, no masking
+            accepted = acc
+            self.last_nis = self.ekf.last_nis
+        else:
+            accepted[fresh] = acc
+            self.last_nis[fresh] = self.ekf.last_nis
+        self.last_innovation_rad = self.ekf.last_innovation_rad
+        self.last_innovation_cov_rad2 = self.ekf.last_innovation_cov_rad2
+        self._keep_from(j if self._tg[j] > t_last else j + 1)
+        self._now = None
+        return accepted
+
+    def current(self):
+        """The estimate at :attr:`t_s`: :attr:`ekf` propagated through the buffered intervals.
+
+        Returns
+        -------
+        q_body_to_icrs : ndarray, shape (4,)
+        bias_rad_s : ndarray, shape (3,)
+        P : ndarray, shape (6, 6)
+        omega_body : ndarray, shape (3,)
+            Bias-corrected rate of the last interval, rad/s.
+        t_s : float
+
+        The arrays are the object's own: copy before changing them.
+        """
+        if self.ekf is None:
+            raise RuntimeError("start(ekf) before current()")
+        if self._now is None:
+            ekf = self.ekf
+            q = np.array(ekf.q_body_to_icrs, dtype=np.float64)
+            b = np.array(ekf.bias_rad_s, dtype=np.float64)
+            P = np.array(ekf.P, dtype=np.float64)
+            if len(self._tg):
+                kf.fuse_frame(q, b, P, float(ekf.t_s), self._wg, self._tg, *self._no_samples, ekf.sigma_v,
+                              ekf.sigma_u, math.inf, *self._scratch, self._rn, *self._no_outputs)
+                omega = self._wg[-1] - b
+                t = float(self._tg[-1])
+            else:
+                omega = np.asarray(ekf.omega_body, dtype=np.float64).copy()
+                t = float(ekf.t_s)
+            self._now = (q, b, P, omega, t)
+        return self._now
+
+    def _keep_from(self, k: int) -> None:
+        self._tg, self._wg, self._rn = self._tg[k:], self._wg[k:], self._rn[k:]
+
+    def _drop_before(self, t: float) -> None:
+        self._keep_from(int(np.searchsorted(self._tg, t, side="right")))

@@ -14,16 +14,23 @@ Timeline of one observed span ``[t0, t1]`` (:meth:`StarTrackerUnit.observe`):
    with N chosen from the *gyro* rate while tracking), the scene, detections (centroid or pixel fidelity), then
    the :class:`startracker.sensor.StarTracker` state machine, which returns up to N attitude samples stamped with
    their exposure instants.
-3. The EKF replays the span: gyro samples and attitude samples in time order
-   (:meth:`startracker.filter.AttitudeEKF.process`). A frame's result is used as soon as the frame ends;
-   processing delay is not simulated (the measured matching latency is reported only).
+3. The frame's samples leave the tracker when its processor is done with them: the frame's end plus the
+   latency of the processor model (:class:`startracker.processor.ProcessorModel`, deterministic; frames in
+   order). The gyro streams on time; the filter fuses each delivered sample at its exposure instant
+   (:class:`startracker.filter.DelayedFusion`: the EKF held at its last sample, the gyro since then buffered).
+4. Verdicts against the truth: each delivered sample and the estimate at the span's end are *wrong* when their
+   error fails the χ²(3) test on their own covariance, *confidently wrong* when they are also flagged valid
+   (:func:`judge_samples`, :func:`judge_estimate`). The estimate monitors itself: a saturated gyro reading
+   inflates its process noise and voids its validity until a later sample is accepted; samples rejected frame
+   after frame void it and then restart it from the tracker.
 
 Fault hooks: ``faults`` (e.g. ``envs.faults.FaultSchedule``) is any object, true when it holds faults, with
 ``frame_dropped(t)``, ``sun_direction_world(t, boresight_icrs, rng)`` (unit vector or None),
 ``blinded_heads(t)`` (set of head indices), ``timestamp_error_s(t, rng)``, ``modify_detections(det, t, rng,
 resolution)``, ``modify_gyro(omega (G, 3), times (G,), rng)`` and ``active_kinds(t0, t1)``.
 
-Everything random draws from the caller's generator; wall-clock latencies are reported only.
+Everything random draws from the caller's generator; this machine's wall-clock matching time is reported
+(``last_stats["matching_wall_clock_ms"]``), never fed back.
 
 The module is over 600 lines because the unit (heads, trackers, gyro, filter and their bookkeeping over a
 span of truth) is one object, and :func:`run_star_tracker` is its thin driver.
@@ -38,12 +45,14 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from startracker.catalog import StarCatalog, load_catalog
-from startracker.filter import AttitudeEKF
+from startracker.filter import AttitudeEKF, DelayedFusion
 from startracker.head import HEAD_CAMERAS, make_head
 from startracker.imu import GYRO_GRADES, Gyro, gyro_preset
+from startracker.kernels import filter as filter_kernels
 from startracker.kernels import rotations as rk
 from startracker.kernels import sensor as sensor_kernels
 from startracker.multifov import MultiFovSensor
+from startracker.processor import ProcessorModel
 from startracker.rotations import quat_integrate, quat_interpolate, quat_rotate
 from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
 from startracker.sensor import MODES, AttitudeSample, StarTracker
@@ -56,6 +65,10 @@ __all__ = [
     "Estimate",
     "EstimateHistory",
     "count_wrong_samples",
+    "judge_samples",
+    "judge_estimate",
+    "chi2_3_threshold",
+    "ProcessorModel",
     "run_star_tracker",
     "IDENTIFY_METHODS",
     "MATCHERS",
@@ -66,9 +79,71 @@ __all__ = [
     "gyro_rate_sigma_rad_s",
 ]
 
-WRONG_FLOOR_RAD = float(np.radians(20 / 3600))  # a sample is "wrong" beyond max(5σ, 20″)
 RESTART_AFTER_REJECTED_FRAMES = 3
 RESTART_BIAS_SIGMA_RAD_S = float(np.radians(1.0))
+
+
+def chi2_3_threshold(false_alarm_p: float) -> float:
+    """The χ²(3) quantile exceeded with probability ``false_alarm_p``: ``Q(x) = erfc(√(x/2)) + √(2x/π) e^(-x/2)``.
+
+    Parameters
+    ----------
+    false_alarm_p : float
+        Tail probability, in (0, 1).
+
+    Returns
+    -------
+    float
+        ``x`` with ``P(χ²₃ > x) = false_alarm_p`` (to 1e-12 relative, by bisection on the closed form).
+    """
+    p = float(false_alarm_p)
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"false_alarm_p must be in (0, 1), got {false_alarm_p!r}")
+
+    def tail(x):
+        return math.erfc(math.sqrt(x / 2.0)) + math.sqrt(2.0 * x / math.pi) * math.exp(-x / 2.0)
+
+    lo, hi = 0.0, 1.0
+    while tail(hi) > p:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if tail(mid) > p:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-13 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+# The verdict's level. A right attitude is called wrong with this probability when its covariance tells the truth;
+# at 1e-9 the 10^6-step soak (~2·10^7 tracker samples) expects 0.02 such false verdicts, so a wrong verdict there is
+# a fact about the sensor and not the test's own noise. Its threshold (44.8) is a 6.7σ error on a single axis.
+VERDICT_FALSE_ALARM_P = 1e-9
+VERDICT_CHI2_3 = chi2_3_threshold(VERDICT_FALSE_ALARM_P)
+# Rate uncertainty of a gyro axis whose reading is saturated (at the range limit, or flat-lined at a clip level):
+# the true rate is unknown beyond the reading, up to the agility of the vehicles the unit serves (20 °/s slews,
+# margin included); the filter adds its square, as an angle random walk (rad²/s), to the attitude process noise.
+SATURATED_RATE_SIGMA_RAD_S = float(np.radians(30.0))
+# The estimate is flagged valid only while its largest 1σ is within this: beyond it, it is no attitude to steer by.
+ESTIMATE_VALID_SIGMA_RAD = float(np.radians(1.0))
+# Longest a sample may take to reach the filter (processing delay); gyro intervals older than this are folded in.
+FUSION_HORIZON_S = 1.0
+# Innovation monitor: the filter's normalised innovations over its last deliveries (at most this many) are summed and
+# tested against χ²(3 n) at this false-alarm probability; a failure voids the estimate's validity and opens the bias
+# covariance (a gyro bias that moved, a time-tag error), as a restart would, without giving up the attitude.
+MONITOR_DELIVERIES = 10
+MONITOR_RECOVERY_DELIVERIES = 5  # after an alarm, the estimate is valid again once this many deliveries pass
+MONITOR_FALSE_ALARM_P = 1e-4
+_MONITOR_Z = 3.7190164854556804  # the standard normal quantile at 1 - MONITOR_FALSE_ALARM_P
+MONITOR_MEAN_CHI2_3 = chi2_3_threshold(MONITOR_FALSE_ALARM_P)
+
+
+def _chi2_quantile_wilson_hilferty(dof: float, z: float) -> float:
+    """χ²(dof) quantile at the standard-normal quantile ``z`` (Wilson-Hilferty; within 1 % for dof >= 3 here)."""
+    c = 2.0 / (9.0 * dof)
+    return dof * (1.0 - c + z * math.sqrt(c)) ** 3
 
 
 @dataclass(frozen=True)
@@ -114,6 +189,9 @@ class UnitConfig:
         Keep the last frame's scene and detections for :meth:`StarTrackerUnit.render_last_frame`.
     heads : tuple of StarTrackerSpec
         (Derived) the spec of every head, mounted, with the overrides above applied.
+    processor : ProcessorModel
+        The tracker's processing budget: each frame's samples reach the filter its modelled latency after the
+        frame ends (:class:`startracker.processor.ProcessorModel`; ``ProcessorModel.instantaneous()`` for none).
     """
 
     camera: object = "paper000"
@@ -132,9 +210,12 @@ class UnitConfig:
     n_heads: int | None = None
     head_separation_deg: float = 45.0
     keep_images: bool = False
+    processor: ProcessorModel = field(default_factory=ProcessorModel)
     heads: tuple = field(default=(), init=False, compare=False, repr=False)
 
     def __post_init__(self):
+        if not isinstance(self.processor, ProcessorModel):
+            raise TypeError(f"processor must be a ProcessorModel, got {type(self.processor).__name__}")
         cams = self.camera
         if isinstance(cams, (list, tuple)):
             if not 1 <= len(cams) <= 8:
@@ -242,7 +323,8 @@ class Estimate:
     attitude_sigma_rad : float
         Largest 1σ attitude uncertainty, rad (π before the first fix).
     valid : bool
-        False before the first fix.
+        The filter vouches for the estimate: it has a fix, its largest 1σ is within 1°, no saturated gyro reading
+        came after its last accepted sample, and the star tracker's samples are not being rejected.
     attitude_cov_rad2 : ndarray, shape (3, 3), or None
         Body-frame attitude covariance, rad²; None before the first fix.
     """
@@ -255,11 +337,31 @@ class Estimate:
 
 
 def count_wrong_samples(samples, time_errors_s, times_s, q_body_to_icrs) -> int:
-    """Attitude samples whose true error exceeds max(5σ, 20″): confident wrong answers.
+    """Attitude samples that are wrong: their true error fails the χ²(3) test on their own covariance.
 
-    σ is the square root of the largest eigenvalue of the sample's covariance. Each sample is judged against the
-    truth at its true exposure instant: an injected timestamp error makes the time tag wrong, not the attitude.
-    Samples outside the truth history are not judged.
+    Shorthand for ``judge_samples(...)[0]`` (every sample counted as flagged valid).
+
+    Parameters
+    ----------
+    samples, time_errors_s, times_s, q_body_to_icrs :
+        As :func:`judge_samples`.
+
+    Returns
+    -------
+    int
+    """
+    return judge_samples(samples, time_errors_s, times_s, q_body_to_icrs)[0]
+
+
+def judge_samples(samples, time_errors_s, times_s, q_body_to_icrs, valid=None) -> tuple[int, int]:
+    """Wrong and confidently wrong star-tracker samples, by consistency with their own covariance.
+
+    A sample is *wrong* when its error against the truth, the body-frame rotation vector ``δθ`` with
+    ``q_true = q ⊗ exp(δθ)``, fails the χ²(3) test on its reported covariance: ``δθᵀ C⁻¹ δθ >``
+    :data:`VERDICT_CHI2_3` (false-alarm probability :data:`VERDICT_FALSE_ALARM_P` for a sample whose covariance tells
+    the truth). It is *confidently wrong* when, in addition, it is flagged valid (the unit used it: the filter's
+    innovation gate let it in). Each sample is judged against the truth at its true exposure instant: an injected
+    timestamp error makes the time tag wrong, not the attitude. Samples outside the truth history are not judged.
 
     Parameters
     ----------
@@ -270,15 +372,45 @@ def count_wrong_samples(samples, time_errors_s, times_s, q_body_to_icrs) -> int:
         Truth history instants, s, increasing.
     q_body_to_icrs : ndarray, shape (S, 4)
         True attitudes at ``times_s`` (unit, float64).
+    valid : array_like of bool, shape (len(samples),), optional
+        Which samples are flagged valid. Default: all.
 
     Returns
     -------
-    int
+    n_wrong, n_confidently_wrong : int
     """
     if not samples:
-        return 0
+        return 0, 0
     t, q, cov = _sample_arrays(samples)
-    return _count_wrong(t - time_errors_s, q, cov, times_s, q_body_to_icrs)
+    wrong = _wrong_samples(t - np.asarray(time_errors_s, dtype=np.float64), q, cov, times_s, q_body_to_icrs)
+    flagged = np.ones(len(samples), dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    return int(np.count_nonzero(wrong)), int(np.count_nonzero(wrong & flagged))
+
+
+def judge_estimate(estimate: "Estimate", q_true_body_to_icrs) -> tuple[bool, bool]:
+    """Whether the filter's estimate is wrong, and confidently wrong, against the true attitude at its time.
+
+    Wrong: its attitude error fails the χ²(3) test on its own attitude covariance (the NEES exceeds
+    :data:`VERDICT_CHI2_3`); confidently wrong: wrong and flagged valid. An estimate without a covariance (before
+    the first fix) claims nothing and is neither.
+
+    Parameters
+    ----------
+    estimate : Estimate
+    q_true_body_to_icrs : array_like, shape (4,)
+        True attitude at the estimate's time (unit).
+
+    Returns
+    -------
+    wrong, confidently_wrong : bool
+    """
+    if estimate.attitude_cov_rad2 is None:
+        return False, False
+    q_true = as_float_array(q_true_body_to_icrs, "q_true_body_to_icrs", last_dim=4, ndim=1)
+    nis = sensor_kernels.consistency_nis(q_true.reshape(1, 4), np.asarray(estimate.q_body_to_icrs, float).reshape(1, 4),
+                                         np.asarray(estimate.attitude_cov_rad2, float).reshape(1, 3, 3))
+    wrong = bool(nis[0] > VERDICT_CHI2_3)
+    return wrong, wrong and bool(estimate.valid)
 
 
 def _sample_arrays(samples):
@@ -287,22 +419,18 @@ def _sample_arrays(samples):
             np.array([s.covariance_rad2 for s in samples]))
 
 
-def _count_wrong(t_true, q_meas, cov, times_s, q_body_to_icrs) -> int:
-    """:func:`count_wrong_samples` on the samples' arrays, ``t_true`` their true exposure instants."""
+def _wrong_samples(t_true, q_meas, cov, times_s, q_body_to_icrs) -> np.ndarray:
+    """Wrong flags (n,) of samples at true instants ``t_true``; those outside the truth history are not wrong."""
     inside = (t_true >= times_s[0]) & (t_true <= times_s[-1])
-    if not inside.all():
-        if not inside.any():
-            return 0
-        t_true, q_meas, cov = t_true[inside], q_meas[inside], cov[inside]
-    q_true = rk.quat_interpolate(times_s, q_body_to_icrs, t_true)  # the caller's own float64 truth history
-    err = rk.quat_angle_between(q_true, q_meas)
-    flags = sensor_kernels.wrong_sample_flags(err, cov, WRONG_FLOOR_RAD)
-    n_wrong = int(np.count_nonzero(flags == 1))
-    undecided = np.flatnonzero(flags == 2)
-    if len(undecided):
-        sig = np.sqrt(np.max(np.linalg.eigvalsh(cov[undecided]), axis=-1))
-        n_wrong += int(np.count_nonzero(err[undecided] > np.maximum(5 * sig, WRONG_FLOOR_RAD)))
-    return n_wrong
+    wrong = np.zeros(len(t_true), dtype=bool)
+    if not inside.any():
+        return wrong
+    idx = np.flatnonzero(inside)
+    q_true = rk.quat_interpolate(times_s, q_body_to_icrs, t_true[idx])  # the caller's own float64 truth history
+    nis = sensor_kernels.consistency_nis(q_true.reshape(-1, 4), np.ascontiguousarray(q_meas[idx]),
+                                         np.ascontiguousarray(cov[idx]))
+    wrong[idx] = nis > VERDICT_CHI2_3
+    return wrong
 
 
 def _empty_stats(n_heads: int = 1) -> dict:
@@ -311,12 +439,17 @@ def _empty_stats(n_heads: int = 1) -> dict:
         update_rate_hz_per_head=[0.0] * n_heads,
         matching_latency_ms=0.0,
         matching_latency_ms_per_head=[0.0] * n_heads,
-        latency_breakdown_ms=dict(predict_match=0.0, group_solve_test=0.0, identify=0.0),
         n_stars=0,
         exposures_per_frame=0,
         n_attitude_samples=0,
         lost_lock_events=0,
+        matching_wall_clock_ms=0.0,
+        matching_wall_clock_ms_per_head=[0.0] * n_heads,
+        wall_clock_breakdown_ms=dict(predict_match=0.0, group_solve_test=0.0, identify=0.0),
         n_wrong_samples=0,
+        n_confidently_wrong_samples=0,
+        estimate_wrong=False,
+        estimate_confidently_wrong=False,
         filter_restarts=0,
         faults_active=[],
     )
@@ -346,11 +479,13 @@ class StarTrackerUnit:
     last_stats : dict
         Figures of the last frame (:meth:`process_frame`) or span (:meth:`observe`): ``update_rate_hz`` (distinct
         attitude instants per second over the span: two heads exposed at the same instant count once),
-        ``update_rate_hz_per_head`` (each head's samples per second), ``matching_latency_ms`` (wall clock of the
-        trackers' work on one frame, summed over the heads, lost-in-space identification excluded: prediction,
-        matching, grouping by instant, the N Wahba solutions and the lock tests; mean over the span's frames),
-        ``matching_latency_ms_per_head``, ``latency_breakdown_ms`` (``predict_match``, ``group_solve_test`` and,
-        apart, ``identify``, per frame summed over the heads), ``n_stars``, ``exposures_per_frame``,
+        ``update_rate_hz_per_head`` (each head's samples per second), ``matching_latency_ms`` (the modelled processing
+        latency of one frame, :class:`ProcessorModel`, summed over the heads; mean over the span's frames),
+        ``matching_latency_ms_per_head``, ``matching_wall_clock_ms`` (this machine's wall clock of the trackers'
+        work on one frame, summed over the heads, lost-in-space identification excluded: prediction, matching,
+        grouping by instant, the N Wahba solutions and the lock tests), ``matching_wall_clock_ms_per_head``,
+        ``wall_clock_breakdown_ms`` (``predict_match``, ``group_solve_test`` and, apart, ``identify``, per frame
+        summed over the heads), ``n_stars``, ``exposures_per_frame``,
         ``n_attitude_samples``, ``lost_lock_events``, ``n_wrong_samples``, ``filter_restarts``, ``faults_active``.
     last_time_error_s : float
         Timestamp error injected into the last frame (fault hooks), s.
@@ -397,7 +532,7 @@ class StarTrackerUnit:
 
     def _clear(self) -> None:
         """The state of a unit that has seen nothing: lost, no estimate, no counts."""
-        self.ekf: AttitudeEKF | None = None
+        self.fusion = DelayedFusion(FUSION_HORIZON_S)
         self.head_modes = ["lost"] * len(self.heads)
         self.tracker_mode = "lost"
         self.last_stats = _empty_stats(len(self.heads))
@@ -408,10 +543,32 @@ class StarTrackerUnit:
         self._last_frame = None
         self._lost_events = 0
         self._n_wrong = 0
+        self._n_confidently_wrong = 0
+        self._n_wrong_estimates = 0
+        self._n_confidently_wrong_estimates = 0
         self._rejected_frames = 0
         self._filter_resets = 0
+        # ring of the last deliveries: Σ NIS, samples, Σ innovation, Σ its covariance
+        self._monitor = (np.zeros(MONITOR_DELIVERIES), np.zeros(MONITOR_DELIVERIES), np.zeros((MONITOR_DELIVERIES, 3)),
+                         np.zeros((MONITOR_DELIVERIES, 3, 3)))
+        self._monitor_slot = 0
+        self._monitor_filled = 0
+        self._inconsistent = False
+        self._monitor_alarms = 0
         self._t_lock_lost = None
         self._reacquisition_s: list[float] = []
+        self._pending: list[tuple] = []  # (t_delivery_s, times, quats, covs, wrong flags) per frame, in order
+        self._t_last_delivery = -np.inf
+        self._t_saturated = -np.inf  # end of the last gyro interval with a saturated reading
+        self._t_accepted = -np.inf  # exposure instant of the last sample the filter accepted
+        self._frame_latency_ms = 0.0
+        self._frame_wall_ms = 0.0
+
+    @property
+    def ekf(self) -> AttitudeEKF | None:
+        """The filter at the time of its last attitude sample (:class:`startracker.filter.DelayedFusion`); None until
+        the first sample. The estimate now is :meth:`estimate`."""
+        return self.fusion.ekf
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, rng: np.random.Generator, faults=None, first_frame_truth=None) -> None:
@@ -424,7 +581,8 @@ class StarTrackerUnit:
             See the module docstring.
         first_frame_truth : tuple (t_s (S,), q_body_to_icrs (S, 4)), optional
             Truth over a first single-exposure frame taken before the first gyro sample: the frame starts at
-            ``t_s[0]``, and the filter (if it gets a fix) is propagated to ``t_s[-1]`` with zero rate.
+            ``t_s[0]``, and the filter (if it gets a fix) is propagated to ``t_s[-1]`` with zero rate (the frame's
+            processing is over by the start of the run).
         """
         self.faults = faults
         self.gyro = Gyro(self.gyro_spec, rng)
@@ -436,21 +594,42 @@ class StarTrackerUnit:
         t_pre, q_pre = first_frame_truth
         samples = self.process_frame((t_pre, q_pre), t_pre[0], rng)
         if samples:
-            self._start_filter(samples[-1], t_pre[-1])
+            last = samples[-1]
+            ekf = self._new_filter(last.q_body_to_icrs, last.covariance_rad2, last.t_s)
+            if t_pre[-1] > last.t_s:
+                ekf.propagate(self._omega_gyro, t_pre[-1] - last.t_s)
+            self.fusion.start(ekf)
+            self._t_accepted = last.t_s
 
-    def _start_filter(self, sample, t_now: float) -> None:
-        """A new filter at ``sample``: its attitude, 3σ of its covariance, propagated to ``t_now``."""
-        sig = float(np.sqrt(np.max(np.linalg.eigvalsh(sample.covariance_rad2))))
-        self.ekf = AttitudeEKF.from_gyro_spec(
-            self.gyro_spec, sample.q_body_to_icrs, sigma_attitude_rad=max(3 * sig, 1e-5), t_s=sample.t_s,
-            gate_chi2=30.0,
+    def _new_filter(self, q_body_to_icrs, covariance_rad2, t_s: float) -> AttitudeEKF:
+        """A new filter at a sample: its attitude, 3σ of its covariance, at its time."""
+        sig = float(np.sqrt(np.max(np.linalg.eigvalsh(covariance_rad2))))
+        return AttitudeEKF.from_gyro_spec(
+            self.gyro_spec, q_body_to_icrs, sigma_attitude_rad=max(3 * sig, 1e-5), t_s=t_s, gate_chi2=30.0,
         )
-        if t_now > sample.t_s:
-            self.ekf.propagate(self._omega_gyro, t_now - sample.t_s)
+
+    def _rate_noise(self, omega_meas: np.ndarray, own_gyro: bool):
+        """Extra process noise (G, 3), rad²/s, on the gyro axes whose reading is saturated, and the index of the last
+        saturated sample; (None, -1) when none is.
+
+        A reading is saturated at the gyro's range, or, from the unit's own gyro when it has noise, when it repeats
+        the previous reading bit for bit (a clip below the range: noise never repeats a float64 value; rates a
+        user hands in may well repeat). Its true rate is unknown beyond the reading:
+        :data:`SATURATED_RATE_SIGMA_RAD_S`, squared, enters the attitude process noise."""
+        out = np.empty((len(omega_meas), 3))
+        last = filter_kernels.saturated_rate_noise(
+            np.ascontiguousarray(omega_meas, dtype=np.float64), self._omega_gyro, float(self.gyro_spec.max_rate_rad_s),
+            own_gyro and self.gyro_spec.arw_rad_sqrt_s > 0.0, SATURATED_RATE_SIGMA_RAD_S**2, out)
+        return (None, -1) if last < 0 else (out, last)
 
     # ------------------------------------------------------------------ one span of truth
     def observe(self, times_s, q_body_to_icrs, rng: np.random.Generator, omega_gyro=None) -> None:
         """Observe a span of the true attitude history: gyro samples, camera frames and the filter over it.
+
+        Each frame's samples reach the filter when the processor is done with the frame (its modelled latency
+        after the frame's end, in frame order); the filter fuses them at their exposure instants
+        (:class:`startracker.filter.DelayedFusion`). The samples delivered in the span and the estimate at its
+        end are judged against the truth (:func:`judge_samples`, :func:`judge_estimate`).
 
         Parameters
         ----------
@@ -468,8 +647,9 @@ class StarTrackerUnit:
             raise RuntimeError("call reset(rng) before observe()")
         times, quats = times_s, q_body_to_icrs
         t0 = times[0]
-        n_frames = int(round((times[-1] - t0) / self.config.frame_period_s))
-        duration_s = n_frames * self.config.frame_period_s
+        cfg = self.config
+        n_frames = int(round((times[-1] - t0) / cfg.frame_period_s))
+        duration_s = n_frames * cfg.frame_period_s
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
             omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / np.diff(times)[:, None]
@@ -478,107 +658,187 @@ class StarTrackerUnit:
                 omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
         else:
             omega_meas = omega_gyro
-        self._omega_gyro = omega_meas[-1].copy()
+        rate_noise, last_saturated = self._rate_noise(omega_meas, omega_gyro is None)
 
         samples = []
         stats = _empty_stats(len(self.heads))
-        lat = []
+        lat, wall = [], []
         per_head_n = np.zeros(len(self.heads))
         per_head_lat = np.zeros(len(self.heads))
+        per_head_wall = np.zeros(len(self.heads))
         breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
         offsets = []
+        frame_ends = []
         for f in range(n_frames):
-            tf = t0 + f * self.config.frame_period_s
+            tf = t0 + f * cfg.frame_period_s
             # the gyro reading at the frame's start: the tracker propagates its prediction from frame_time
             k = min(int(round((tf - t0) / self.gyro_period_s)), len(omega_meas) - 1)
             new = self.process_frame((times, quats), tf, rng, omega_gyro=omega_meas[k])
             samples.extend(new)
             offsets.extend([self.last_time_error_s] * len(new))
-            lat.append(self.last_stats["matching_latency_ms"])
+            frame_ends.append((len(samples), tf + cfg.frame_period_s + 1e-3 * self._frame_latency_ms))
+            lat.append(self._frame_latency_ms)
+            wall.append(self._frame_wall_ms)
             per_head_n += self._frame_head_samples
             per_head_lat += self.last_stats["matching_latency_ms_per_head"]
-            for key, v in self.last_stats["latency_breakdown_ms"].items():
+            per_head_wall += self.last_stats["matching_wall_clock_ms_per_head"]
+            for key, v in self.last_stats["wall_clock_breakdown_ms"].items():
                 breakdown[key] += v
             stats["n_stars"] = self.last_stats["n_stars"]
             stats["exposures_per_frame"] = self.last_stats["exposures_per_frame"]
         stats["matching_latency_ms"] = sum(lat) / len(lat) if lat else 0.0
+        stats["matching_wall_clock_ms"] = sum(wall) / len(wall) if wall else 0.0
         if n_frames:
             stats["matching_latency_ms_per_head"] = (per_head_lat / n_frames).tolist()
-            stats["latency_breakdown_ms"] = {k: v / n_frames for k, v in breakdown.items()}
-        stats["filter_restarts"] = self._filter_resets
+            stats["matching_wall_clock_ms_per_head"] = (per_head_wall / n_frames).tolist()
+            stats["wall_clock_breakdown_ms"] = {k: v / n_frames for k, v in breakdown.items()}
         stats["n_attitude_samples"] = len(samples)
         # distinct attitude instants: heads exposed at the same instant add samples, not updates
         n_instants = len(np.unique(np.round(np.array([smp.t_s for smp in samples]) * 1e6))) if samples else 0
         stats["update_rate_hz"] = n_instants / duration_s
         stats["update_rate_hz_per_head"] = (per_head_n / duration_s).tolist()
         stats["lost_lock_events"] = self._lost_events
-        if samples:  # the samples' arrays, built once for the wrong-sample count and the filter
-            arrays = _sample_arrays(samples)
-            wrong = _count_wrong(arrays[0] - np.array(offsets), arrays[1], arrays[2], times, quats)
-        else:
-            arrays, wrong = None, 0
-        self._n_wrong += wrong
-        stats["n_wrong_samples"] = wrong
         stats["faults_active"] = self.faults.active_kinds(t0, times[-1]) if self.faults else []
         self.last_samples = samples
+        if samples:  # judged against this span's truth now, counted when the filter has seen them
+            t_arr, q_arr, c_arr = _sample_arrays(samples)
+            wrong = _wrong_samples(t_arr - np.array(offsets), q_arr, c_arr, times, quats)
+            start = 0
+            for end, t_done in frame_ends:
+                if end > start:
+                    t_done = max(t_done, self._t_last_delivery)  # the output port delivers frames in order
+                    self._t_last_delivery = t_done
+                    self._pending.append((t_done, t_arr[start:end], q_arr[start:end], c_arr[start:end],
+                                          wrong[start:end]))
+                start = end
 
-        if self.ekf is None:
-            if samples:
-                first = samples[0]
-                self._start_filter(first, first.t_s)
-                rest = tuple(a[1:] for a in arrays)
-                self._filter_span(times, omega_meas, samples[1:], rest,
-                                  start_index=int(np.searchsorted(times, first.t_s, side="right")))
-        else:
-            self._filter_span(times, omega_meas, samples, arrays)
+        # the gyro stream is on time; then whatever the processor has finished by the span's end
+        self._omega_gyro = omega_meas[-1].copy()
+        self.fusion.add_gyro(omega_meas, times[1:], rate_noise)
+        if rate_noise is not None:
+            self._t_saturated = float(times[1 + last_saturated])
+        self._deliver(float(times[-1]), stats)
+        stats["filter_restarts"] = self._filter_resets
+        wrong_est, confident_est = self._judge_estimate_now(quats[-1])
+        stats["estimate_wrong"], stats["estimate_confidently_wrong"] = wrong_est, confident_est
+        self._n_wrong_estimates += wrong_est
+        self._n_confidently_wrong_estimates += confident_est
         self.last_stats = stats
 
-    def _filter_span(self, times, omega_meas, samples, arrays, start_index: int = 1) -> None:
-        """Replay gyro intervals ``(times[k-1], times[k]]`` and the attitude samples in time order.
+    def _judge_estimate_now(self, q_true) -> tuple[bool, bool]:
+        """:func:`judge_estimate` of :meth:`estimate`, on the filter's own arrays (no copies)."""
+        if self.fusion.ekf is None:
+            return False, False
+        q, _, P, _, _ = self.fusion.current()
+        nis = sensor_kernels.consistency_nis(q_true.reshape(1, 4), q.reshape(1, 4),
+                                             np.ascontiguousarray(P[:3, :3]).reshape(1, 3, 3))
+        wrong = bool(nis[0] > VERDICT_CHI2_3)
+        return wrong, wrong and self._estimate_valid(P)
 
-        ``arrays`` are the samples' times, attitudes and covariances (:func:`_sample_arrays`), or None without
-        samples."""
-        tg = times[start_index:]
-        wg = omega_meas[start_index - 1 :]
-        if len(tg) == 0:
+    def _estimate_valid(self, P) -> bool:
+        """The estimate's validity flag (see :class:`Estimate`)."""
+        sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
+        return (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0 and not self._inconsistent
+                and self._t_saturated < self._t_accepted)
+
+    def _deliver(self, t_now: float, stats: dict) -> None:
+        """Fuse the frames whose processing is over by ``t_now``, and count their verdicts into ``stats``."""
+        n_due = 0
+        while n_due < len(self._pending) and self._pending[n_due][0] <= t_now + 1e-9:
+            n_due += 1
+        if n_due == 0:
             return
-        if samples:
-            tm, qm, cm = arrays
-            if len(tm) > 1 and np.any(tm[1:] < tm[:-1]):  # several heads: merge into time order (stable, as sorted)
-                order = np.argsort(tm, kind="stable")
-                tm, qm, cm = tm[order], qm[order], cm[order]
-                samples = [samples[i] for i in order]
-            keep = tm >= self.ekf.t_s - 1e-12
-            qm, tm, cm = qm[keep], np.maximum(tm[keep], self.ekf.t_s), cm[keep]
+        due, self._pending = self._pending[:n_due], self._pending[n_due:]
+        if n_due == 1:
+            _, tm, qm, cm, wrong = due[0]
         else:
-            qm, tm, cm = np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3))
-        if tg[0] > self.ekf.t_s - 1e-9 and (len(tm) == 0 or tm[-1] <= tg[-1] + 1e-9):
-            # what ekf.process checks holds by construction (sorted, finite, unit, SPD from Wahba): skip the checks
-            accepted = self.ekf.process(wg, tg, qm / np.linalg.norm(qm, axis=1)[:, None], tm, cm, validate=False)
-        else:
-            accepted = self.ekf.process(wg, tg, qm, tm, cm)
+            tm, qm, cm, wrong = (np.concatenate([d[i] for d in due]) for i in range(1, 5))
+        if len(tm) > 1 and np.any(tm[1:] < tm[:-1]):  # several heads: merge into time order (stable)
+            order = np.argsort(tm, kind="stable")
+            tm, qm, cm, wrong = tm[order], qm[order], cm[order], wrong[order]
+        qm = qm / np.linalg.norm(qm, axis=1)[:, None]
+        accepted = np.zeros(len(tm), dtype=bool)
+        first = 0
+        if self.fusion.ekf is None:  # the first fix starts the filter
+            self.fusion.start(self._new_filter(qm[0], cm[0], float(tm[0])))
+            accepted[0] = True
+            first = 1
+        # what the filter's checks demand holds by construction (sorted, finite, unit, SPD from Wahba)
+        accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
+        if accepted.any():
+            self._t_accepted = max(self._t_accepted, float(tm[accepted][-1]))
+        n_wrong = int(np.count_nonzero(wrong))
+        n_confident = int(np.count_nonzero(wrong & accepted))
+        self._n_wrong += n_wrong
+        self._n_confidently_wrong += n_confident
+        stats["n_wrong_samples"] += n_wrong
+        stats["n_confidently_wrong_samples"] += n_confident
+        self._monitor_innovations()
         # Persistent innovation: the tracker keeps reporting attitudes the filter gates out (a gyro bias jump the
-        # filter does not believe). After three such frames in a row, restart from the tracker, keep the bias
-        # estimate, and open its covariance so the filter can learn the new bias.
-        if len(accepted) and self.tracker_mode == "track":
+        # filter does not believe). After three such deliveries in a row, restart from the tracker's last sample,
+        # keep the bias estimate, and open its covariance so the filter can learn the new bias.
+        if self.tracker_mode == "track":
             self._rejected_frames = 0 if accepted.any() else self._rejected_frames + 1
             if self._rejected_frames >= RESTART_AFTER_REJECTED_FRAMES:
-                bias = self.ekf.bias_rad_s.copy()
-                t_end = self.ekf.t_s
-                last = samples[-1]
-                self._start_filter(last, last.t_s)
-                self.ekf.bias_rad_s = bias
-                p_bias = float(np.max(np.diag(self.ekf.P[3:, 3:])))
-                self.ekf.set_bias_covariance(np.eye(3) * max(RESTART_BIAS_SIGMA_RAD_S**2, p_bias))
-                if t_end > self.ekf.t_s:
-                    self.ekf.propagate(self._omega_gyro, t_end - self.ekf.t_s)
+                old = self.fusion.ekf
+                ekf = self._new_filter(qm[-1], cm[-1], float(tm[-1]))
+                ekf.bias_rad_s = old.bias_rad_s.copy()
+                p_bias = float(np.max(np.diag(old.P[3:, 3:])))
+                ekf.set_bias_covariance(np.eye(3) * max(RESTART_BIAS_SIGMA_RAD_S**2, p_bias))
+                self.fusion.start(ekf)
+                self._t_accepted = float(tm[-1])
                 self._rejected_frames = 0
                 self._filter_resets += 1
 
+    def _monitor_innovations(self) -> None:
+        """Innovation test over the last deliveries: on failure, void the estimate's validity and open the bias
+        covariance so that the filter relearns the bias; valid again once :data:`MONITOR_RECOVERY_DELIVERIES`
+        deliveries since have passed.
+
+        Two statistics of the window (:func:`startracker.kernels.filter.innovation_window`): the spread, Σ NIS
+        against χ²(3 n), and the mean, (Σz)ᵀ (ΣS)⁻¹ (Σz) against χ²(3): a bias drags the innovations one way, and
+        the mean sees a steady offset √n times sooner than the spread."""
+        fusion = self.fusion
+        if len(fusion.last_innovation_rad) == 0:
+            return
+        ring = self._monitor
+        total, n, mean_chi2 = filter_kernels.innovation_window(
+            fusion.last_nis, fusion.last_innovation_rad, fusion.last_innovation_cov_rad2, *ring,
+            self._monitor_slot)
+        self._monitor_slot = (self._monitor_slot + 1) % MONITOR_DELIVERIES
+        self._monitor_filled += 1
+        if total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3:
+            ekf = fusion.ekf
+            p_bb = np.diag(ekf.P[3:, 3:])
+            ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))
+            fusion.start(ekf)  # its state changed: the estimate now is recomputed
+            for a in ring:
+                a[:] = 0.0
+            self._monitor_filled = 0
+            self._inconsistent = True
+            self._monitor_alarms += 1
+        elif self._inconsistent and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES:
+            self._inconsistent = False
+
     @property
     def n_wrong_samples_total(self) -> int:
-        """Confident wrong samples (:func:`count_wrong_samples`) since :meth:`reset`."""
+        """Wrong samples (:func:`judge_samples`) delivered to the filter since :meth:`reset`."""
         return self._n_wrong
+
+    @property
+    def n_confidently_wrong_samples_total(self) -> int:
+        """Wrong samples the filter accepted (flagged valid) since :meth:`reset`."""
+        return self._n_confidently_wrong
+
+    @property
+    def n_wrong_estimates_total(self) -> int:
+        """Spans since :meth:`reset` that ended with a wrong estimate (:func:`judge_estimate`)."""
+        return self._n_wrong_estimates
+
+    @property
+    def n_confidently_wrong_estimates_total(self) -> int:
+        """Spans since :meth:`reset` that ended with a wrong estimate flagged valid."""
+        return self._n_confidently_wrong_estimates
 
     @property
     def reacquisition_times_s(self) -> list[float]:
@@ -628,11 +888,12 @@ class StarTrackerUnit:
     def _inertial_prior(self, tracker, t_frame: float):
         """The EKF attitude propagated to the frame, offered to a tracker that is not tracking (inertial aiding),
         when the filter is confident enough for the tracker's prior check."""
-        if self.ekf is None:
+        if self.fusion.ekf is None:
             return None
-        if float(np.max(self.ekf.attitude_sigma_rad)) > tracker.prior_sigma_rad / 3.0:
+        q, _, P, omega, t_s = self.fusion.current()
+        if math.sqrt(max(P[0, 0], P[1, 1], P[2, 2])) > tracker.prior_sigma_rad / 3.0:
             return None
-        return quat_integrate(self.ekf.q_body_to_icrs, self.ekf.omega_body, t_frame - self.ekf.t_s)
+        return quat_integrate(q, omega, t_frame - t_s)
 
     # ------------------------------------------------------------------ one frame
     def process_frame(self, truth, t_frame: float, rng: np.random.Generator, omega_gyro=None) -> list[AttitudeSample]:
@@ -659,6 +920,7 @@ class StarTrackerUnit:
         self.last_time_error_s = 0.0
         faults = self.faults
         self._frame_head_samples = np.zeros(len(self.heads))
+        self._frame_latency_ms = self._frame_wall_ms = 0.0
         if faults and faults.frame_dropped(t_mid):
             self.last_stats = dict(_empty_stats(len(self.heads)), exposures_per_frame=0)
             return []
@@ -674,6 +936,7 @@ class StarTrackerUnit:
         prev_mode = self.tracker_mode
         samples, n_matched, n_exp, frames = [], 0, 0, []
         head_latency = [0.0] * len(self.heads)
+        head_wall = [0.0] * len(self.heads)
         breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
         for k, (head, tracker) in enumerate(zip(self.heads, self.trackers)):
             plan = self._plan_for(k, omega_hint)
@@ -694,15 +957,18 @@ class StarTrackerUnit:
                 res = tracker.process_frame(
                     det.xy, det.intensity, t_exp, float(t_frame), omega_hint,
                     None if prior is None else rk.quat_normalize(prior), validate=False)
-            # the tracker's whole frame but lost-in-space identification: prediction and matching (timed by the
-            # tracker), grouping by instant, the N Wahba solutions and the lock tests (the rest)
+            # wall clock of the tracker's whole frame but lost-in-space identification: prediction and matching
+            # (timed by the tracker), grouping by instant, the N Wahba solutions and the lock tests (the rest)
             tracker_ms = (time.perf_counter() - t_proc) * 1e3 - float(res.identify_latency_ms)
             predict_match_ms = float(res.matching_latency_ms)
-            head_latency[k] = max(tracker_ms, predict_match_ms)
+            head_wall[k] = max(tracker_ms, predict_match_ms)
             breakdown["predict_match"] += predict_match_ms
-            breakdown["group_solve_test"] += head_latency[k] - predict_match_ms
+            breakdown["group_solve_test"] += head_wall[k] - predict_match_ms
             breakdown["identify"] += float(res.identify_latency_ms)
             self._frame_head_samples[k] = len(res.samples)
+            # the modelled latency; one processor serves the heads in turn: their budgets add up
+            head_latency[k] = cfg.processor.frame_latency_ms(len(det), len(res.samples),
+                                                             self.head_modes[k] != "track" and len(det) > 0)
             self.head_modes[k] = res.mode
             samples.extend(res.samples)
             n_matched += int(res.n_matched)
@@ -718,11 +984,14 @@ class StarTrackerUnit:
             self._t_lock_lost = None
         if cfg.keep_images:
             self._last_frame = frames[0]
+        self._frame_latency_ms, self._frame_wall_ms = sum(head_latency), sum(head_wall)
         self.last_stats = dict(
             _empty_stats(len(self.heads)),
             matching_latency_ms=sum(head_latency),
             matching_latency_ms_per_head=head_latency,
-            latency_breakdown_ms=breakdown,
+            matching_wall_clock_ms=sum(head_wall),
+            matching_wall_clock_ms_per_head=head_wall,
+            wall_clock_breakdown_ms=breakdown,
             n_stars=n_matched,
             exposures_per_frame=n_exp,
             n_attitude_samples=len(samples),
@@ -732,11 +1001,11 @@ class StarTrackerUnit:
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
         """The filter's estimate; before the first fix an invalid one (identity, raw gyro rate, σ = π)."""
-        if self.ekf is None:
+        if self.fusion.ekf is None:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
-        sig = float(np.max(self.ekf.attitude_sigma_rad))
-        return Estimate(self.ekf.q_body_to_icrs.copy(), np.asarray(self.ekf.omega_body, float).copy(), sig, True,
-                        np.array(self.ekf.P[:3, :3], dtype=float))
+        q, _, P, omega, t_s = self.fusion.current()
+        sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
+        return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(P), P[:3, :3].copy())
 
     def render_last_frame(self) -> np.ndarray | None:
         """RGB uint8 image (rows, cols, 3) of the last frame of the first head, detections boxed; None before a

@@ -164,29 +164,29 @@ def test_sweep_pairs_leave_the_same_set_as_the_kdtree(seed):
     assert kept(sweep) == kept(ref)
 
 
-def test_count_wrong_bounds_decide_like_the_eigensolver():
-    """count_wrong_samples decides most samples from trace bounds on λ_max; the count must equal the direct
-    rule err > max(5 sqrt(λ_max), 20″) for errors on both sides of the threshold."""
-    from startracker.onboard import count_wrong_samples
-    from startracker.sensor import AttitudeSample
+def test_consistency_nis_equals_the_rotation_vector_quadratic_form():
+    """kernels.sensor.consistency_nis = δθᵀ C⁻¹ δθ with δθ the rotation vector of q_est* ⊗ q_true (scipy's
+    rotation vector, numpy's solve), for any sign of either quaternion; a singular covariance gives inf."""
+    from scipy.spatial.transform import Rotation
+
+    from startracker.kernels.sensor import consistency_nis
 
     rng = np.random.default_rng(5)
-    times = np.linspace(0.0, 0.1, 11)
-    quats = rot.quat_integrate(rot.quat_random(rng), [0.2, -0.1, 0.3], times)
-    samples, expected = [], 0
-    for k in range(200):
-        a = rng.normal(size=(3, 3)) * 10 ** rng.uniform(-6, -3)
-        cov = a @ a.T + 1e-14 * np.eye(3)
-        sig = np.sqrt(np.max(np.linalg.eigvalsh(cov)))
-        t = rng.uniform(0.0, 0.1)
-        err = max(5 * sig, np.radians(20 / 3600)) * rng.uniform(0.5, 1.5)
-        axis = rng.normal(size=3)
-        q_true = rot.quat_interpolate(times, quats, t)
-        q_meas = rot.quat_multiply(q_true, rot.quat_from_rotvec(axis / np.linalg.norm(axis) * err))
-        samples.append(AttitudeSample(t, q_meas, cov, 5))
-        expected += int(rot.quat_angle_between(q_true, q_meas) > max(5 * sig, np.radians(20 / 3600)))
-    assert 0 < expected < 200
-    assert count_wrong_samples(samples, np.zeros(len(samples)), times, quats) == expected
+    n = 200
+    q_true = rot.quat_random(rng, n)
+    err = rng.normal(size=(n, 3)) * 10 ** rng.uniform(-6, -1, (n, 1))
+    q_est = np.array([rot.quat_multiply(q, rot.quat_from_rotvec(-e)) for q, e in zip(q_true, err)])
+    a = rng.normal(size=(n, 3, 3)) * 10 ** rng.uniform(-6, -3, (n, 1, 1))
+    cov = a @ np.swapaxes(a, 1, 2) + 1e-14 * np.eye(3)
+    sign = np.where(rng.random((n, 1)) < 0.5, -1.0, 1.0)
+    got = consistency_nis(q_true * sign, q_est, cov)
+    r_est = Rotation.from_quat(q_est[:, [1, 2, 3, 0]])
+    r_true = Rotation.from_quat(q_true[:, [1, 2, 3, 0]])
+    d = (r_est.inv() * r_true).as_rotvec()
+    ref = np.einsum("ni,ni->n", d, np.linalg.solve(cov, d[..., None])[..., 0])
+    np.testing.assert_allclose(got, ref, rtol=1e-7)
+    np.testing.assert_allclose(d, err, rtol=1e-6, atol=1e-15)
+    assert consistency_nis(q_true[:1], q_est[:1], np.zeros((1, 3, 3)))[0] == np.inf
 
 
 def test_projection_kernel_equals_the_pinhole_model():

@@ -35,7 +35,7 @@ def test_import_direction(package, forbidden):
 # ``startracker/<room>/``) and the rooms each must NOT import. Read off the code's import graph, low to high:
 #
 #   base      rotations, validation, kernels, cache
-#   data      catalog, optics, photometry, kvector, imu, attitude, filter
+#   data      catalog, optics, photometry, kvector, imu, attitude, filter, processor
 #   truth     scene
 #   pixels    imaging (detector, background, spots, render) -> centroid (extraction, fidelity)
 #   solving   identify, track (siblings: neither imports the other, nor pixels)
@@ -51,7 +51,7 @@ SUBSYSTEMS = {"color", "multifov"}
 SENSOR_LEVEL = {"head", "sensor", "onboard"}
 FORBIDDEN = {
     **{room: ABOVE_DATA for room in ("rotations", "validation", "kernels", "cache", "catalog", "optics",
-                                     "photometry", "kvector", "imu", "attitude", "filter")},
+                                     "photometry", "kvector", "imu", "attitude", "filter", "processor")},
     "scene": ABOVE_DATA - {"scene"},
     "imaging": {"centroid", "identify", "track", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,
     "centroid": {"identify", "track", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,

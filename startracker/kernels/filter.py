@@ -10,7 +10,10 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
 - :func:`attitude_residual`: the innovation ``z`` of an attitude sample; :func:`quat_advance`: ``q ⊗ exp(r)``;
 - :func:`fuse_frame`: a whole frame (gyro intervals and attitude samples in time order, sequential updates
   with the innovation gate and the multiplicative reset after each one), the per-frame path of
-  :meth:`startracker.filter.AttitudeEKF.process`.
+  :meth:`startracker.filter.AttitudeEKF.process` (its extra ``rate_noise`` is the process noise of saturated gyro
+  axes; it also returns each sample's innovation, its covariance and NIS);
+- :func:`saturated_rate_noise`: which gyro readings are saturated, and the process noise they get;
+- :func:`innovation_window`: the innovation monitor's window statistics (spread and mean of the innovations).
 """
 
 from __future__ import annotations
@@ -20,7 +23,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame"]
+__all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
+           "innovation_window", "saturated_rate_noise"]
 
 
 @njit(cache=True)
@@ -321,15 +325,20 @@ def _rotate_by(q, rx, ry, rz):
 
 
 @njit(cache=True)
-def _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2):
+def _propagate(q, b, P, w_gyro, rate_noise, dt, sigma_v, sigma_u, phi, qd, m1, m2):
     wx, wy, wz = w_gyro[0] - b[0], w_gyro[1] - b[1], w_gyro[2] - b[2]
     _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd)
+    # extra angle random walk on the axes whose reading is unreliable (a saturated gyro)
+    qd[0, 0] += rate_noise[0] * dt
+    qd[1, 1] += rate_noise[1] * dt
+    qd[2, 2] += rate_noise[2] * dt
     _rotate_by(q, wx * dt, wy * dt, wz * dt)
     _predict_model_cov_into(P, phi, qd, m1, m2)
 
 
 @njit(cache=True)
-def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last):
+def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last, rate_noise,
+               nis_out, z_out, s_out):
     """One frame of the MEKF: gyro intervals and attitude samples in time order, sequential updates.
 
     Gyro sample ``g`` is the rate over ``(tg[g-1], tg[g]]`` (the first from ``t_s``). Each attitude sample is
@@ -367,6 +376,17 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
         Output: Φ and Q of the last propagation (unchanged when there was none).
     z_last : ndarray, shape (3,)
         Output: innovation of the last sample (unchanged when M = 0).
+    rate_noise : ndarray, shape (G, 3)
+        Extra angle-random-walk variance density of each gyro interval per body axis, rad²/s, added to the attitude
+        block of Q as ``rate_noise · dt``: zero for a healthy reading, the square of the rate uncertainty for an
+        axis whose reading is saturated (its true rate is unknown beyond the reading).
+    nis_out : ndarray, shape (M,)
+        Output: normalised innovation squared ``zᵀ S⁻¹ z`` of each sample against the filter just before it (3 dof:
+        χ²(3) for a consistent filter), whether or not the gate accepted it.
+    z_out : ndarray, shape (M, 3)
+        Output: each sample's innovation ``z`` (rotation vector, rad).
+    s_out : ndarray, shape (M, 3, 3)
+        Output: its covariance ``S = P_θθ + R`` (rad²).
 
     Returns
     -------
@@ -401,17 +421,17 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
             w_gyro = wg[g]
             dt = tg[g] - t
             if dt > 0.0:
-                _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2)
+                _propagate(q, b, P, w_gyro, rate_noise[g], dt, sigma_v, sigma_u, phi, qd, m1, m2)
                 n_prop += 1
                 t = tg[g]
             g += 1
         if last:
             break
-        if g < n_g:
-            w_gyro = wg[g]
+        gi = g if g < n_g else n_g - 1
+        w_gyro = wg[gi]
         dt = t_next - t
         if dt > 0.0:
-            _propagate(q, b, P, w_gyro, dt, sigma_v, sigma_u, phi, qd, m1, m2)
+            _propagate(q, b, P, w_gyro, rate_noise[gi], dt, sigma_v, sigma_u, phi, qd, m1, m2)
             n_prop += 1
             t = t_next
         z0, z1, z2 = _residual(q[0], q[1], q[2], q[3], qm[i, 0], qm[i, 1], qm[i, 2], qm[i, 3])
@@ -426,6 +446,11 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
             + (z0 * s_inv[0, 1] + z1 * s_inv[1, 1] + z2 * s_inv[2, 1]) * z1
             + (z0 * s_inv[0, 2] + z1 * s_inv[1, 2] + z2 * s_inv[2, 2]) * z2
         )
+        nis_out[i] = nis
+        z_out[i, 0], z_out[i, 1], z_out[i, 2] = z0, z1, z2
+        for a in range(3):
+            for c in range(3):
+                s_out[i, a, c] = s[a, c]
         if nis > gate_chi2:
             accepted[i] = False
             continue
@@ -460,3 +485,114 @@ def quat_advance(q, rotvec):
     out = q.copy()
     _rotate_by(out, rotvec[0], rotvec[1], rotvec[2])
     return out
+
+
+@njit(cache=True)
+def innovation_window(nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot):
+    """Store one delivery's innovation sums in a ring and return the window's two consistency statistics.
+
+    Parameters
+    ----------
+    nis : ndarray, shape (M,)
+        Normalised innovation squared of each sample of the delivery (NaN: not fused; skipped).
+    z : ndarray, shape (F, 3)
+        Innovations of the fused samples, rad.
+    s : ndarray, shape (F, 3, 3)
+        Their covariances ``S``, rad².
+    ring_nis, ring_n : ndarray, shape (K,)
+        Per-delivery sums of NIS and sample counts (0 marks an empty slot); slot ``slot`` is overwritten.
+    ring_z : ndarray, shape (K, 3)
+        Per-delivery sums of innovations.
+    ring_s : ndarray, shape (K, 3, 3)
+        Per-delivery sums of their covariances.
+    slot : int
+        Slot to write, in [0, K).
+
+    Returns
+    -------
+    nis_total : float
+        Σ NIS over the window: χ²(3 n) for a consistent filter.
+    n : float
+        Samples in the window.
+    mean_chi2 : float
+        ``(Σ z)ᵀ (Σ S)⁻¹ (Σ z)``: χ²(3) for a white innovation sequence (0 for an empty window).
+    """
+    total = 0.0
+    count = 0.0
+    for i in range(nis.shape[0]):
+        if nis[i] == nis[i]:
+            total += nis[i]
+            count += 1.0
+    ring_nis[slot] = total
+    ring_n[slot] = count
+    for a in range(3):
+        acc = 0.0
+        for i in range(z.shape[0]):
+            acc += z[i, a]
+        ring_z[slot, a] = acc
+        for c in range(3):
+            acc = 0.0
+            for i in range(s.shape[0]):
+                acc += s[i, a, c]
+            ring_s[slot, a, c] = acc
+    nis_total = 0.0
+    n = 0.0
+    zs = np.zeros(3)
+    ss = np.zeros((3, 3))
+    for k in range(ring_n.shape[0]):
+        if ring_n[k] > 0.0:
+            nis_total += ring_nis[k]
+            n += ring_n[k]
+            for a in range(3):
+                zs[a] += ring_z[k, a]
+                for c in range(3):
+                    ss[a, c] += ring_s[k, a, c]
+    if n == 0.0:
+        return nis_total, n, 0.0
+    s_inv = np.empty((3, 3))
+    _inv3_sym_into(ss, s_inv)
+    mean_chi2 = 0.0
+    for a in range(3):
+        for c in range(3):
+            mean_chi2 += zs[a] * s_inv[a, c] * zs[c]
+    return nis_total, n, mean_chi2
+
+
+@njit(cache=True)
+def saturated_rate_noise(omega, omega_prev, limit_rad_s, check_repeat, noise_rad2_s, out):
+    """Extra process noise of the gyro axes whose reading is saturated.
+
+    An axis of sample ``g`` is saturated when ``|ω| >= limit_rad_s``, or, with ``check_repeat``, when it equals the
+    previous sample's reading bit for bit (a clip below the range; a noisy gyro never repeats a value).
+
+    Parameters
+    ----------
+    omega : ndarray, shape (G, 3)
+        Gyro readings, rad/s.
+    omega_prev : ndarray, shape (3,)
+        The reading before ``omega[0]``, rad/s.
+    limit_rad_s : float
+        The gyro's range, rad/s.
+    check_repeat : bool
+        Flag repeated readings too.
+    noise_rad2_s : float
+        Angle-random-walk variance density given to a saturated axis, rad²/s.
+    out : ndarray, shape (G, 3)
+        Output: ``noise_rad2_s`` on saturated axes, 0 elsewhere.
+
+    Returns
+    -------
+    int
+        Index of the last sample with a saturated axis, -1 when none is.
+    """
+    last = -1
+    for g in range(omega.shape[0]):
+        for a in range(3):
+            w = omega[g, a]
+            prev = omega_prev[a] if g == 0 else omega[g - 1, a]
+            if abs(w) >= limit_rad_s or (check_repeat and w == prev):
+                out[g, a] = noise_rad2_s
+                last = g
+            else:
+                out[g, a] = 0.0
+    return last

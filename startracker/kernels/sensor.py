@@ -1,8 +1,8 @@
-"""Star-tracker bookkeeping kernels: the lock's innovation test and the wrong-sample test, no checks.
+"""Star-tracker bookkeeping kernels: the lock's innovation test and the consistency verdict, no checks.
 
-The callers are :class:`startracker.sensor.StarTracker` (the innovation χ² of a tracked frame) and
-:func:`startracker.onboard.count_wrong_samples` (confident wrong answers against the truth); both hand over
-float64 arrays they built themselves. Quaternions are (w, x, y, z), covariances body-frame rad².
+The callers are :class:`startracker.sensor.StarTracker` (the innovation χ² of a tracked frame) and the verdicts of
+:mod:`startracker.onboard` (:func:`~startracker.onboard.judge_samples`, :func:`~startracker.onboard.judge_estimate`:
+an attitude against the truth on its own covariance); both hand over float64 arrays they built themselves. Quaternions are (w, x, y, z), covariances body-frame rad².
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["innovation_chi2_mean", "wrong_sample_flags"]
+__all__ = ["innovation_chi2_mean", "consistency_nis"]
 
 
 @njit(cache=True)
@@ -86,35 +86,62 @@ def innovation_chi2_mean(q_pred, q_sol, cov_sol, tau_s, cov_theta, cov_omega, co
 
 
 @njit(cache=True)
-def wrong_sample_flags(err_rad, cov, floor_rad):
-    """Decide from the covariance's trace whether each sample's error exceeds ``max(5σ, floor)``.
+def consistency_nis(q_true, q_est, cov):
+    """Normalised error squared of each attitude against the truth, on its own covariance (3 dof).
 
-    σ² is the covariance's largest eigenvalue, which lies in ``[trace / 3, trace]``: a sample whose error
-    exceeds ``max(5 √trace, floor)`` is wrong, one within ``max(5 √(trace / 3), floor)`` is right, whatever
-    the eigenvalues; only the rest need an eigensolver.
+    The error is the body-frame rotation vector ``δθ = log(q_est* ⊗ q_true)`` (``q_true = q_est ⊗ exp(δθ)``, the
+    convention of the tracker's and the filter's covariances; angle in [0, π]) and the result ``δθᵀ C⁻¹ δθ``:
+    χ²(3)-distributed when the covariance tells the truth. A covariance that is not positive definite gives ``inf``
+    (an attitude that claims no uncertainty is consistent with no error at all).
 
     Parameters
     ----------
-    err_rad : ndarray, shape (n,)
-        True attitude error of each sample, rad.
+    q_true, q_est : ndarray, shape (n, 4)
+        True and reported attitudes (w, x, y, z), unit, body -> ICRS; signs do not matter.
     cov : ndarray, shape (n, 3, 3)
-        Each sample's covariance, rad².
-    floor_rad : float
-        Smallest error called wrong, rad.
+        Reported covariance of each attitude's error, body frame, rad², symmetric.
 
     Returns
     -------
-    ndarray of int64, shape (n,)
-        1 wrong, 0 right, 2 undecided by the bounds.
+    ndarray, shape (n,)
+        ``δθᵀ C⁻¹ δθ`` of each attitude (dimensionless).
     """
-    n = err_rad.shape[0]
-    out = np.empty(n, dtype=np.int64)
+    n = q_true.shape[0]
+    out = np.empty(n)
     for k in range(n):
-        tr = cov[k, 0, 0] + cov[k, 1, 1] + cov[k, 2, 2]
-        if err_rad[k] > max(5.0 * math.sqrt(tr * (1.0 + 1e-9)), floor_rad):
-            out[k] = 1
-        elif err_rad[k] <= max(5.0 * math.sqrt(tr / 3.0 * (1.0 - 1e-9)), floor_rad):
-            out[k] = 0
-        else:
-            out[k] = 2
+        w1, x1, y1, z1 = q_est[k, 0], -q_est[k, 1], -q_est[k, 2], -q_est[k, 3]
+        w2, x2, y2, z2 = q_true[k, 0], q_true[k, 1], q_true[k, 2], q_true[k, 3]
+        w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
+        x = w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2
+        y = w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2
+        z = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
+        if w < 0.0:  # the shorter of the two rotations
+            w, x, y, z = -w, -x, -y, -z
+        v = math.sqrt(x * x + y * y + z * z)
+        scale = 2.0 if v < 1e-15 else 2.0 * math.atan2(v, w) / v
+        d0, d1, d2 = scale * x, scale * y, scale * z
+        c = cov[k]
+        # Cholesky C = L Lᵀ, then δᵀ C⁻¹ δ = |L⁻¹ δ|²
+        a00 = c[0, 0]
+        if not a00 > 0.0:
+            out[k] = math.inf
+            continue
+        l00 = math.sqrt(a00)
+        l10 = c[1, 0] / l00
+        l20 = c[2, 0] / l00
+        a11 = c[1, 1] - l10 * l10
+        if not a11 > 0.0:
+            out[k] = math.inf
+            continue
+        l11 = math.sqrt(a11)
+        l21 = (c[2, 1] - l20 * l10) / l11
+        a22 = c[2, 2] - l20 * l20 - l21 * l21
+        if not a22 > 0.0:
+            out[k] = math.inf
+            continue
+        l22 = math.sqrt(a22)
+        u0 = d0 / l00
+        u1 = (d1 - l10 * u0) / l11
+        u2 = (d2 - l20 * u0 - l21 * u1) / l22
+        out[k] = u0 * u0 + u1 * u1 + u2 * u2
     return out

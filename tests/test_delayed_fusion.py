@@ -1,0 +1,148 @@
+"""Processing delay in the loop: the processor model's latency, and a filter that fuses late samples exactly."""
+
+import copy
+
+import numpy as np
+import pytest
+
+from startracker.filter import AttitudeEKF, DelayedFusion
+from startracker.onboard import StarTrackerUnit, UnitConfig
+from startracker.processor import ProcessorModel
+from startracker.rotations import quat_from_rotvec, quat_integrate, quat_multiply, quat_random
+
+ARCSEC = np.radians(1 / 3600)
+
+
+def setup(seed=0, g=40):
+    """A filter, 40 gyro intervals of 10 ms at ~20 °/s, and one attitude sample inside them."""
+    rng = np.random.default_rng(seed)
+    q0 = quat_random(rng)
+    ekf = AttitudeEKF(q0, arw_rad_sqrt_s=2e-5, rrw_rad_s_sqrt_s=1e-7, sigma_attitude_rad=20 * ARCSEC,
+                      sigma_bias_rad_s=1e-4, gate_chi2=30.0)
+    tg = 0.01 * np.arange(1, g + 1)
+    wg = np.radians([0.0, 20.0, 3.0]) + rng.normal(size=(g, 3)) * 1e-4
+    t_meas = 0.1234  # inside the 13th interval
+    q_meas = quat_multiply(quat_integrate(q0, np.radians([0.0, 20.0, 3.0]), t_meas),
+                           quat_from_rotvec(rng.normal(size=3) * 5 * ARCSEC))
+    cov = np.diag([2.0, 2.0, 30.0]) ** 2 * ARCSEC**2
+    return ekf, wg, tg, q_meas, t_meas, cov
+
+
+def test_a_delayed_sample_gives_the_posterior_of_the_sample_on_time():
+    """The sample reaches the filter 0.2 s after its exposure (20 gyro intervals later, nothing in between): the
+    filter's posterior at the exposure instant, and the estimate now, equal those of the same sample fused on time
+    (the plain EKF fusing gyro and sample in time order) to 1e-9."""
+    ekf, wg, tg, qm, tm, cov = setup()
+    on_time = copy.deepcopy(ekf)
+    k = int(np.searchsorted(tg, tm))  # the interval covering the sample
+    tg_cut = tg[: k + 1].copy()
+    tg_cut[k] = tm
+    on_time.process(wg[: k + 1], tg_cut, qm[None], [tm], cov[None])  # up to the exposure instant, then the update
+    posterior = (on_time.q_body_to_icrs.copy(), on_time.bias_rad_s.copy(), on_time.P.copy())
+    through = copy.deepcopy(ekf)
+    through.process(wg, tg, qm[None], [tm], cov[None])  # the whole window in one in-order pass
+
+    late = DelayedFusion(horizon_s=1.0)
+    late.start(copy.deepcopy(ekf))
+    late.add_gyro(wg[:33], tg[:33])  # the gyro is on time: 0.33 s have passed when the sample arrives
+    assert late.fuse(qm[None], np.array([tm]), cov[None]).tolist() == [True]
+    late.add_gyro(wg[33:], tg[33:])
+    np.testing.assert_allclose(late.ekf.q_body_to_icrs, posterior[0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(late.ekf.bias_rad_s, posterior[1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(late.ekf.P, posterior[2], rtol=1e-9, atol=1e-20)
+    assert late.ekf.t_s == tm
+    q, b, P, omega, t = late.current()
+    assert t == tg[-1]
+    np.testing.assert_allclose(q, through.q_body_to_icrs, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(b, through.bias_rad_s, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(P, through.P, rtol=1e-9, atol=1e-20)
+    np.testing.assert_allclose(omega, wg[-1] - through.bias_rad_s, rtol=0, atol=1e-12)
+
+
+def test_without_the_sample_the_estimate_is_the_gyro_propagation():
+    ekf, wg, tg, qm, tm, cov = setup(1)
+    ref = copy.deepcopy(ekf)
+    ref.process(wg, tg, np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3)))
+    late = DelayedFusion(horizon_s=5.0)
+    late.start(copy.deepcopy(ekf))
+    late.add_gyro(wg, tg)
+    q, b, P, _, _ = late.current()
+    np.testing.assert_allclose(q, ref.q_body_to_icrs, atol=1e-12)
+    np.testing.assert_allclose(P, ref.P, rtol=1e-12, atol=1e-22)
+    # a fused sample moves the estimate: the delayed path really updates (not just propagates)
+    late.fuse(qm[None], np.array([tm]), cov[None])
+    assert np.max(np.sqrt(np.diag(late.current()[2])[:3])) < np.max(np.sqrt(np.diag(P)[:3]))
+
+
+def test_stale_samples_are_rejected_and_old_gyro_is_folded_in():
+    ekf, wg, tg, qm, tm, cov = setup(2)
+    late = DelayedFusion(horizon_s=0.1)
+    late.start(copy.deepcopy(ekf))
+    late.add_gyro(wg, tg)  # 0.4 s of gyro: everything older than 0.3 s is folded into the filter
+    assert late.ekf.t_s == pytest.approx(0.3)
+    assert late.fuse(qm[None], np.array([tm]), cov[None]).tolist() == [False] and late.n_stale == 1
+    ref = copy.deepcopy(ekf)
+    ref.process(wg, tg, np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3)))
+    np.testing.assert_allclose(late.current()[0], ref.q_body_to_icrs, atol=1e-12)
+
+
+def test_processor_model_budget():
+    p = ProcessorModel()
+    lat = p.frame_latency_ms(1000, 21, identified=False)
+    assert lat == pytest.approx(5.0 + 1.0 + 0.005 * 1000 + 0.005 * 1000 + 0.1 * 21)
+    assert p.frame_latency_ms(40, 1, identified=True) == pytest.approx(5.0 + 1.0 + 0.2 + 0.1 + 30.0)
+    assert ProcessorModel.instantaneous().frame_latency_ms(500, 21, True) == 0.0
+    assert ProcessorModel.fixed(20.0).frame_latency_ms(500, 21, False) == 20.0
+    with pytest.raises(ValueError, match="readout_ms"):
+        ProcessorModel(readout_ms=-1.0)
+    with pytest.raises(TypeError, match="processor"):
+        UnitConfig(processor=20.0)
+
+
+def constant_rate_history(seconds=2.0, rate_hz=100.0):
+    t = np.arange(int(seconds * rate_hz) + 1) / rate_hz
+    return t, quat_integrate(quat_random(np.random.default_rng(9)), np.radians([0.5, -0.3, 0.2]), t)
+
+
+@pytest.mark.parametrize("latency_ms", [0.0, 50.0, 150.0])
+def test_samples_reach_the_filter_their_latency_after_the_frame(latency_ms):
+    """In track, a frame's samples are fused once the span covering frame end + latency has been observed, not
+    before (one frame per span: ceil(latency / frame period) spans later); the reported latency is the model's."""
+    t, q = constant_rate_history()
+    unit = StarTrackerUnit(UnitConfig(processor=ProcessorModel.fixed(latency_ms)))
+    rng = np.random.default_rng(0)
+    unit.reset(rng)
+    frame = int(round(unit.config.frame_period_s * unit.config.gyro_rate_hz))
+    produced, fused = [], []
+    for f in range(len(t) // frame):
+        sl = slice(f * frame, (f + 1) * frame + 1)
+        n_before = None if unit.ekf is None else unit.ekf.n_updates
+        unit.observe(t[sl], q[sl], rng)
+        if unit.last_stats["n_attitude_samples"]:
+            assert unit.last_stats["matching_latency_ms"] == latency_ms
+        if n_before is not None and unit.ekf is not None:
+            produced.append(unit.last_stats["n_attitude_samples"])
+            fused.append(unit.ekf.n_updates - n_before)
+    delay = int(np.ceil(latency_ms / 1e3 / unit.config.frame_period_s - 1e-9))
+    assert sum(produced) >= 10 and produced[-1] > 0
+    # what the filter took in each span is what the tracker produced `delay` spans earlier (no gate rejections)
+    assert fused[delay:] == produced[: len(produced) - delay]
+
+
+def test_env_takes_a_processor_and_reports_its_latency():
+    """processor= as a model, a dict of its fields or a fixed latency in ms; info["matching_latency_ms"] is the
+    model's figure for the frame (the same on every run); anything else is refused naming the argument."""
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+
+    for proc, expected in ((ProcessorModel.fixed(12.5), 12.5), ({"readout_ms": 12.5, "identify_ms": 0.0,
+                           "overhead_ms": 0.0, "centroid_ms_per_detection": 0.0, "match_ms_per_detection": 0.0,
+                           "solve_ms_per_instant": 0.0}, 12.5), (7.0, 7.0)):
+        env = gym.make("startracker/AttitudeHold-v0", processor=proc).unwrapped
+        env.reset(seed=0)
+        info = env.step(np.zeros(env.action_space.shape, np.float32))[4]
+        assert info["matching_latency_ms"] == expected
+        env.close()
+    with pytest.raises(TypeError, match="processor"):
+        gym.make("startracker/AttitudeHold-v0", processor="fast")

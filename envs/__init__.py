@@ -2,11 +2,13 @@
 
 * ``startracker/AgileSlew-v0``: random large-angle slews to a target attitude.
 * ``startracker/AttitudeHold-v0``: hold an inertial target under a disturbance torque.
+* ``startracker/AgileSlew-v1``: the slew task shaped for learners (body-torque action, scaled observation, shaped
+  reward, divergence termination, optional ideal sensor).
 """
 
 from gymnasium.envs.registration import register, registry
 
-ENV_IDS = ("startracker/AgileSlew-v0", "startracker/AttitudeHold-v0")
+ENV_IDS = ("startracker/AgileSlew-v0", "startracker/AttitudeHold-v0", "startracker/AgileSlew-v1")
 # info entries measured on the wall clock of this machine: reported, never fed back, so not bit-for-bit repeatable
 WALL_CLOCK_INFO_KEYS = ("matching_latency_ms",)
 
@@ -24,5 +26,13 @@ if ENV_IDS[1] not in registry:
         kwargs={"task": "hold", "max_episode_s": 60.0},
         max_episode_steps=None,
     )
+# -v1's default episode: 5-180 deg slews fit in 33.4 s (envs.agile_slew_v1.episode_seconds_for), 334 steps of 0.1 s
+V1_MAX_EPISODE_STEPS = 334
+if ENV_IDS[2] not in registry:
+    register(
+        id=ENV_IDS[2],
+        entry_point="envs.agile_slew_v1:AgileSlewV1Env",
+        max_episode_steps=V1_MAX_EPISODE_STEPS,
+    )
 
-__all__ = ["ENV_IDS", "WALL_CLOCK_INFO_KEYS"]
+__all__ = ["ENV_IDS", "WALL_CLOCK_INFO_KEYS", "V1_MAX_EPISODE_STEPS"]

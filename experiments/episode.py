@@ -120,7 +120,9 @@ def run_episode(
                 break
         wall = time.perf_counter() - wall0
         frames = render_frames(u, first_info, rows, seed) if keep_frame and rows else []
-        summary = summarise(rows, first_info, info, terminated=bool(rows) and done and terminated,
+        # an env that also ends episodes on divergence (AgileSlew-v1) says which end it was
+        settled = bool(rows) and done and terminated and not info.get("diverged", False)
+        summary = summarise(rows, first_info, info, terminated=settled,
                             control_period_s=u.control_period_s, settle_hold_s=u.settle_hold_s, wall_s=wall,
                             task=u.task)
         summary.update(env_id=env_id, seed=int(seed), policy=_policy_name(policy),

@@ -1,0 +1,58 @@
+"""Train an RL baseline (SAC, PPO or TD3) on AgileSlew-v1 with the ideal sensor; writes the checkpoint and its
+learning curve (CSV and PNG) into ``--out``.
+
+    python scripts/train.py --algo sac --timesteps 120000 --seed 0 --out runs/sac
+
+``--ship`` then copies the checkpoint into policies/checkpoints (refused if one is there, unless ``--overwrite``).
+"""
+
+import argparse
+import shutil
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from policies.rl import ALGOS, CHECKPOINT_DIR, checkpoint_paths, train  # noqa: E402
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--algo", choices=ALGOS, default="sac")
+    ap.add_argument("--timesteps", type=int, default=None, help="default 120000 (SAC, TD3), 600000 (PPO)")
+    ap.add_argument("--envs", type=int, default=None, help="parallel in-process envs; default 2 (SAC, TD3), 8 (PPO)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=None, help="output directory, default runs/<algo>")
+    ap.add_argument("--eval-every", type=int, default=10_000)
+    ap.add_argument("--ship", action="store_true", help="copy the checkpoint into policies/checkpoints")
+    ap.add_argument("--overwrite", action="store_true", help="allow --ship or --out to replace existing files")
+    args = ap.parse_args(argv)
+    timesteps = args.timesteps or (600_000 if args.algo == "ppo" else 120_000)
+    n_envs = args.envs or (8 if args.algo == "ppo" else 2)
+    out = Path(args.out or f"runs/{args.algo}")
+    name = f"{args.algo}_agileslew_v1"
+    if out.resolve() == CHECKPOINT_DIR.resolve() and not args.overwrite:
+        sys.exit(f"--out {out} is the shipped checkpoint directory: use --ship, or --overwrite to replace it")
+    if checkpoint_paths(out / name)[0].exists() and not args.overwrite:
+        sys.exit(f"{checkpoint_paths(out / name)[0]} exists: choose another --out or pass --overwrite")
+    t0 = time.perf_counter()
+    meta = train(args.algo, timesteps, out_dir=out, seed=args.seed, n_envs=n_envs, eval_every=args.eval_every,
+                 name=name)
+    print(f"trained {args.algo} for {timesteps} steps on {n_envs} env(s) in {time.perf_counter() - t0:.0f} s -> {out}/"
+          f"{name}.zip, curve {out}/curve.png")
+    if meta.get("final_eval"):
+        print(f"last evaluation: {100 * meta['final_eval']['eval_success_rate']:.0f} % settled")
+    if args.ship:
+        src = checkpoint_paths(out / name)
+        dst = checkpoint_paths(CHECKPOINT_DIR / name)
+        if dst[0].exists() and not args.overwrite:
+            sys.exit(f"{dst[0]} is shipped: pass --overwrite to replace it")
+        for s, d in zip(src, dst):
+            if s.exists():
+                shutil.copy2(s, d)
+        print(f"shipped -> {dst[0]}")
+
+
+if __name__ == "__main__":
+    main()

@@ -96,7 +96,12 @@ def run_episode(
     unknown = sorted(set(options) - set(RESET_OPTIONS))
     if unknown:
         raise ValueError(f"unknown reset option(s) {unknown}; allowed: {', '.join(RESET_OPTIONS)}")
-    env = gym.make(env_id, **dict(env_kwargs or {}))
+    env_kwargs = dict(env_kwargs or {})
+    spec = gym.spec(env_id)
+    if spec.max_episode_steps is not None and "max_episode_s" in env_kwargs and "max_episode_steps" not in env_kwargs:
+        # an id registered with a step limit (AgileSlew-v1): the limit follows the episode time asked for
+        env_kwargs["max_episode_steps"] = int(round(env_kwargs["max_episode_s"] / env_kwargs.get("control_period_s", 0.1)))
+    env = gym.make(env_id, **env_kwargs)
     try:
         pol = _make_policy(policy, env, seed)
         obs, info = env.reset(seed=seed, options=options or None)

@@ -171,9 +171,48 @@ def plot_curve(rows: list[dict], path, title: str = "") -> Path | None:
 
 
 # ---------------------------------------------------------------------------------------------------- training
+def demonstration_action(obs, inertia_kg_m2, max_rate_rad_s: float, wheel_max_torque_Nm: float) -> np.ndarray:
+    """A rate-limited PD on the AgileSlew-v1 observation (decoded with its documented scales), (3,) in [-1, 1]:
+    the demonstrations that seed an off-policy learner's replay buffer (``train(..., demo_episodes=N)``)."""
+    e = np.asarray(obs[0:3], dtype=np.float64) * np.pi
+    w = np.asarray(obs[6:9], dtype=np.float64) * max_rate_rad_s
+    w_ref = np.clip(e / 1.8, -0.3, 0.3)
+    tau = np.asarray(inertia_kg_m2) @ (1.8 * (w_ref - w))
+    return np.clip(tau / wheel_max_torque_Nm, -1.0, 1.0)
+
+
+def add_demonstrations(model, vec, n_episodes: int, noise: float, seed: int) -> int:
+    """Run :func:`demonstration_action` (plus Gaussian noise of std ``noise``, fading inside 5°) on the training envs for
+    ``n_episodes`` episodes and add every transition to ``model.replay_buffer``; returns the transitions added."""
+    rng = np.random.default_rng(seed)
+    spec = vec.env_method("controller_spec")[0]
+    max_rate = vec.get_attr("max_rate_rad_s")[0]
+    obs = vec.reset()
+    done_episodes, n = 0, 0
+    while done_episodes < n_episodes:
+        raw = vec.get_original_obs() if hasattr(vec, "get_original_obs") else obs
+        actions = np.stack([demonstration_action(o, spec["inertia_kg_m2"], max_rate, spec["wheel_max_torque_Nm"])
+                            for o in raw])
+        # exploration noise fades inside 5° so that the demonstrations also settle (0.05°/s is 9 % of one step's
+        # full-torque rate change)
+        fade = np.minimum(np.linalg.norm(raw[:, 0:3] * np.pi, axis=1, keepdims=True) / np.radians(5.0), 1.0)
+        actions = np.clip(actions + fade * rng.normal(0.0, noise, actions.shape), -1.0, 1.0).astype(np.float32)
+        new_obs, rewards, dones, infos = vec.step(actions)
+        next_obs = new_obs.copy()
+        for i, d in enumerate(dones):
+            if d:
+                next_obs[i] = infos[i]["terminal_observation"]
+                done_episodes += 1
+        model.replay_buffer.add(obs, next_obs, actions, rewards, dones, infos)
+        obs = new_obs
+        n += len(actions)
+    return n
+
+
 def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac", seed: int = 0, n_envs: int = 1,
           eval_every: int = 10_000, eval_episodes: int = 10, env_kwargs: dict | None = None,
-          normalize: bool | None = None, progress: bool = True, name: str | None = None) -> dict:
+          normalize: bool | None = None, progress: bool = True, name: str | None = None,
+          demo_episodes: int = 0, demo_noise: float = 0.1) -> dict:
     """Train one agent on AgileSlew-v1 and write its checkpoint and learning curve into ``out_dir``.
 
     Parameters
@@ -196,6 +235,9 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
         Wrap in ``VecNormalize`` (observation and reward); default True for PPO, False otherwise.
     name : str, optional
         Checkpoint stem; default ``<algo>_agileslew_v1``.
+    demo_episodes : int
+        Off-policy algorithms: episodes of :func:`demonstration_action` (with Gaussian action noise of std
+        ``demo_noise``) put into the replay buffer before learning; counted in the curve's steps.
 
     Returns
     -------
@@ -219,6 +261,11 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
     if normalize:
         vec = VecNormalize(vec, norm_obs=True, norm_reward=True, gamma=0.99)
     model = _algo_class(algo)("MlpPolicy", vec, **_model_kwargs(algo, seed))
+    n_demo = 0
+    if demo_episodes:
+        if algo == "ppo":
+            raise ValueError("demo_episodes needs an off-policy algorithm (sac, td3)")
+        n_demo = add_demonstrations(model, vec, demo_episodes, demo_noise, seed)
     rows: list[dict] = []
     # evaluated as the agent benchmark's easy level is scored: 60 s episodes, the env's settle tolerances
     eval_kwargs = dict(kwargs, max_episode_s=60.0, max_episode_steps=600)
@@ -245,7 +292,7 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
             vn = vec if normalize else None
             ev = evaluate_model(self.model, eval_kwargs, eval_episodes, vecnormalize=vn)
             recent = slice(-50, None)
-            row = dict(timesteps=int(self.num_timesteps), wall_s=round(time.perf_counter() - t0, 1),
+            row = dict(timesteps=int(self.num_timesteps) + n_demo, wall_s=round(time.perf_counter() - t0, 1),
                        episodes=self.episodes,
                        train_return_mean=float(np.mean(self.returns[recent])) if self.returns else float("nan"),
                        train_success_rate=float(np.mean(self.successes[recent])) if self.successes else 0.0, **ev)
@@ -266,7 +313,8 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
 
     meta = dict(algo=algo, env_id=V1_ID, env_kwargs={k: kwargs[k] for k in INTERFACE_KEYS if k in kwargs},
                 train_env_kwargs={k: list(v) if isinstance(v, tuple) else v for k, v in kwargs.items()},
-                total_timesteps=int(total_timesteps), n_envs=n_envs, seed=seed, normalize=normalize,
+                total_timesteps=int(total_timesteps), demo_episodes=demo_episodes, demo_noise=demo_noise,
+                demo_transitions=n_demo, n_envs=n_envs, seed=seed, normalize=normalize,
                 wall_s=round(wall, 1), torch_threads=1, sb3_version=stable_baselines3.__version__,
                 hyperparameters={k: v for k, v in _model_kwargs(algo, seed).items() if k not in ("verbose", "device")},
                 final_eval=rows[-1] if rows else None)

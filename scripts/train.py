@@ -1,7 +1,7 @@
 """Train an RL baseline (SAC, PPO or TD3) on AgileSlew-v1 with the ideal sensor; writes the checkpoint and its
 learning curve (CSV and PNG) into ``--out``.
 
-    python scripts/train.py --algo sac --timesteps 120000 --seed 0 --out runs/sac
+    python scripts/train.py --algo sac --timesteps 100000 --demos 100 --seed 0 --out runs/sac
 
 ``--ship`` then copies the checkpoint into policies/checkpoints (refused if one is there, unless ``--overwrite``).
 """
@@ -20,15 +20,18 @@ from policies.rl import ALGOS, CHECKPOINT_DIR, checkpoint_paths, train  # noqa: 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--algo", choices=ALGOS, default="sac")
-    ap.add_argument("--timesteps", type=int, default=None, help="default 120000 (SAC, TD3), 600000 (PPO)")
+    ap.add_argument("--timesteps", type=int, default=None, help="default 100000 (SAC, TD3), 300000 (PPO)")
     ap.add_argument("--envs", type=int, default=None, help="parallel in-process envs; default 2 (SAC, TD3), 8 (PPO)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="output directory, default runs/<algo>")
     ap.add_argument("--eval-every", type=int, default=10_000)
+    ap.add_argument("--demos", type=int, default=None,
+                    help="SAC/TD3: episodes of a scripted PD put into the replay buffer before learning (default 100)")
     ap.add_argument("--ship", action="store_true", help="copy the checkpoint into policies/checkpoints")
     ap.add_argument("--overwrite", action="store_true", help="allow --ship or --out to replace existing files")
     args = ap.parse_args(argv)
-    timesteps = args.timesteps or (600_000 if args.algo == "ppo" else 120_000)
+    timesteps = args.timesteps or (300_000 if args.algo == "ppo" else 100_000)
+    demos = (0 if args.algo == "ppo" else 100) if args.demos is None else args.demos
     n_envs = args.envs or (8 if args.algo == "ppo" else 2)
     out = Path(args.out or f"runs/{args.algo}")
     name = f"{args.algo}_agileslew_v1"
@@ -38,7 +41,7 @@ def main(argv=None):
         sys.exit(f"{checkpoint_paths(out / name)[0]} exists: choose another --out or pass --overwrite")
     t0 = time.perf_counter()
     meta = train(args.algo, timesteps, out_dir=out, seed=args.seed, n_envs=n_envs, eval_every=args.eval_every,
-                 name=name)
+                 name=name, demo_episodes=demos)
     print(f"trained {args.algo} for {timesteps} steps on {n_envs} env(s) in {time.perf_counter() - t0:.0f} s -> {out}/"
           f"{name}.zip, curve {out}/curve.png")
     if meta.get("final_eval"):

@@ -6,6 +6,8 @@
   reward, divergence termination, optional ideal sensor).
 """
 
+import warnings
+
 from gymnasium.envs.registration import register, registry
 
 ENV_IDS = ("startracker/AgileSlew-v0", "startracker/AttitudeHold-v0", "startracker/AgileSlew-v1")
@@ -34,5 +36,9 @@ if ENV_IDS[2] not in registry:
         entry_point="envs.agile_slew_v1:AgileSlewV1Env",
         max_episode_steps=V1_MAX_EPISODE_STEPS,
     )
+
+# gymnasium calls a lower version "out of date" once a higher one is registered; v0 is the engineer's task, not a
+# deprecated one, so that one message is silenced
+warnings.filterwarnings("ignore", message=r".*startracker/AgileSlew-v0 is out of date.*")
 
 __all__ = ["ENV_IDS", "WALL_CLOCK_INFO_KEYS", "V1_MAX_EPISODE_STEPS"]

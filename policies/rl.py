@@ -212,7 +212,8 @@ def add_demonstrations(model, vec, n_episodes: int, noise: float, seed: int) -> 
 def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac", seed: int = 0, n_envs: int = 1,
           eval_every: int = 10_000, eval_episodes: int = 10, env_kwargs: dict | None = None,
           normalize: bool | None = None, progress: bool = True, name: str | None = None,
-          demo_episodes: int = 0, demo_noise: float = 0.1) -> dict:
+          demo_episodes: int = 0, demo_noise: float = 0.1, finetune_timesteps: int = 0,
+          finetune_ent_coef: float = 1e-3, init_from=None) -> dict:
     """Train one agent on AgileSlew-v1 and write its checkpoint and learning curve into ``out_dir``.
 
     Parameters
@@ -238,6 +239,11 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
     demo_episodes : int
         Off-policy algorithms: episodes of :func:`demonstration_action` (with Gaussian action noise of std
         ``demo_noise``) put into the replay buffer before learning; counted in the curve's steps.
+    finetune_timesteps : int
+        SAC: further steps after ``total_timesteps`` with the entropy coefficient fixed at ``finetune_ent_coef``
+        (a nearly deterministic policy: precision for the settle window, which exploration noise keeps missing).
+    init_from : path, optional
+        Start from this SB3 checkpoint's weights instead of a fresh network.
 
     Returns
     -------
@@ -304,7 +310,21 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
                       f"eval return {row['eval_return_mean']:7.2f} settled {100 * row['eval_success_rate']:3.0f} %  "
                       f"final error {row['eval_final_error_deg_median']:.3g}°", flush=True)
 
-    model.learn(total_timesteps=int(total_timesteps), callback=Curve(), progress_bar=False)
+    if init_from is not None:
+        model.set_parameters(str(init_from), device="cpu")
+        model.learning_starts = 0  # a trained actor explores better than uniform random actions
+    curve = Curve()
+    if total_timesteps > 0:
+        model.learn(total_timesteps=int(total_timesteps), callback=curve, progress_bar=False)
+    if finetune_timesteps:
+        if algo != "sac":
+            raise ValueError("finetune_timesteps needs algo='sac'")
+        model.ent_coef_optimizer = None  # SB3's SAC then uses ent_coef_tensor as a constant
+        model.ent_coef_tensor = torch.tensor(float(finetune_ent_coef))
+        lr = float(model.learning_rate) / 3.0  # smaller steps once the policy is near its goal
+        model.lr_schedule = lambda _progress: lr
+        model.learn(total_timesteps=int(finetune_timesteps), callback=curve, progress_bar=False,
+                    reset_num_timesteps=total_timesteps == 0)
     wall = time.perf_counter() - t0
     model.save(zip_path)
     if normalize:
@@ -313,7 +333,8 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
 
     meta = dict(algo=algo, env_id=V1_ID, env_kwargs={k: kwargs[k] for k in INTERFACE_KEYS if k in kwargs},
                 train_env_kwargs={k: list(v) if isinstance(v, tuple) else v for k, v in kwargs.items()},
-                total_timesteps=int(total_timesteps), demo_episodes=demo_episodes, demo_noise=demo_noise,
+                total_timesteps=int(total_timesteps), finetune_timesteps=int(finetune_timesteps),
+                finetune_ent_coef=finetune_ent_coef, init_from=str(init_from) if init_from else None, demo_episodes=demo_episodes, demo_noise=demo_noise,
                 demo_transitions=n_demo, n_envs=n_envs, seed=seed, normalize=normalize,
                 wall_s=round(wall, 1), torch_threads=1, sb3_version=stable_baselines3.__version__,
                 hyperparameters={k: v for k, v in _model_kwargs(algo, seed).items() if k not in ("verbose", "device")},

@@ -117,8 +117,10 @@ def run_episode(
         while not done:
             action = pol.act(obs)
             obs, reward, terminated, truncated, info = env.step(action)
+            # an action that is not one command per wheel (AgileSlew-v1's body torque): the wheels' own commands
+            wheel_cmd = None if np.shape(action) == max_torque.shape else u.spacecraft.commanded_wheel_torque_Nm
             rows.append(_row(info, reward, action, u.control_period_s, boresight, u.spacecraft.wheel_speeds_rad_s,
-                             wheel_inertia, max_torque))
+                             wheel_inertia, max_torque, wheel_cmd))
             done = terminated or truncated
             n += 1
             if max_steps is not None and n >= max_steps:
@@ -203,7 +205,8 @@ def _policy_name(policy) -> str:
     return f"{type(policy).__module__}:{type(policy).__name__}"
 
 
-def _row(info: dict, reward: float, action, control_period_s, boresight, wheel_speed, wheel_inertia, max_torque) -> dict:
+def _row(info: dict, reward: float, action, control_period_s, boresight, wheel_speed, wheel_inertia, max_torque,
+         wheel_cmd=None) -> dict:
     q_true = np.asarray(info["q_true"], dtype=np.float64)
     q_est = np.asarray(info["q_est"], dtype=np.float64)
     # estimate error as a body-frame rotation vector (estimate relative to truth), split about the boresight
@@ -239,7 +242,7 @@ def _row(info: dict, reward: float, action, control_period_s, boresight, wheel_s
         "omega_est_body_deg_s": np.degrees(np.asarray(info.get("omega_est_body", np.zeros(3)), dtype=np.float64)),
         "wheel_speed_rad_s": np.array(wheel_speed, dtype=np.float64),
         "wheel_momentum_Nms": wheel_inertia * np.array(wheel_speed, dtype=np.float64),
-        "wheel_torque_cmd_Nm": a * max_torque,
+        "wheel_torque_cmd_Nm": a * max_torque if wheel_cmd is None else np.asarray(wheel_cmd, dtype=np.float64),
         "action": np.array(action, dtype=np.float64),
     }
 

@@ -158,6 +158,8 @@ def plot_curve(rows: list[dict], path, title: str = "") -> Path | None:
     ax[1].set_ylim(-5, 105)
     ax[1].legend(fontsize=7)
     ax[2].semilogy(t, [max(r["eval_final_error_deg_median"], 1e-4) for r in rows])
+    ax[2].axhline(0.05, color="k", ls="--", lw=0.8, label="settle tolerance")
+    ax[2].legend(fontsize=7)
     ax[2].set_ylabel("final error, median (°)")
     for a in ax:
         a.set_xlabel("environment steps (thousands)")
@@ -311,7 +313,7 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
                       f"final error {row['eval_final_error_deg_median']:.3g}°", flush=True)
 
     if init_from is not None:
-        model.set_parameters(str(init_from), device="cpu")
+        model.set_parameters(str(init_from), exact_match=False, device="cpu")  # a fine-tuned one has no entropy optimiser
         model.learning_starts = 0  # a trained actor explores better than uniform random actions
     curve = Curve()
     if total_timesteps > 0:
@@ -320,11 +322,14 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
         if algo != "sac":
             raise ValueError("finetune_timesteps needs algo='sac'")
         model.ent_coef_optimizer = None  # SB3's SAC then uses ent_coef_tensor as a constant
+        model.ent_coef = float(finetune_ent_coef)  # saved so, the checkpoint loads as a fixed-entropy SAC
         model.ent_coef_tensor = torch.tensor(float(finetune_ent_coef))
         lr = float(model.learning_rate) / 3.0  # smaller steps once the policy is near its goal
         model.lr_schedule = lambda _progress: lr
         model.learn(total_timesteps=int(finetune_timesteps), callback=curve, progress_bar=False,
                     reset_num_timesteps=total_timesteps == 0)
+    if not rows or rows[-1]["timesteps"] != model.num_timesteps + n_demo:
+        curve.record()  # the final model is on the curve too
     wall = time.perf_counter() - t0
     model.save(zip_path)
     if normalize:
@@ -386,7 +391,9 @@ class SB3Policy(Policy):
         if not zip_path.exists():
             raise ValueError(f"checkpoint {zip_path} does not exist: train one with scripts/train.py")
         self.metadata = self.read_metadata(zip_path)
-        self.model = _algo_class(self.metadata["algo"]).load(zip_path, device="cpu")
+        # a fine-tuned SAC was trained with a fixed entropy coefficient: it loads as one
+        custom = {"ent_coef": self.metadata["finetune_ent_coef"]} if self.metadata.get("finetune_timesteps") else None
+        self.model = _algo_class(self.metadata["algo"]).load(zip_path, device="cpu", custom_objects=custom)
         self.vecnormalize = None
         if self.metadata.get("normalize") and vn_path.exists():
             import pickle

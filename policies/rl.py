@@ -264,6 +264,7 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
     out_dir.mkdir(parents=True, exist_ok=True)
     name = name or f"{algo}_agileslew_v1"
     zip_path, json_path, vn_path = checkpoint_paths(out_dir / name)
+    best_zip, best_json, best_vn = checkpoint_paths(out_dir / f"{name}_best")
     vec = DummyVecEnv([make_training_env(seed + i, env_id=V1_ID, **kwargs) for i in range(n_envs)])
     vec.seed(seed)
     if normalize:
@@ -283,6 +284,7 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
         def __init__(self):
             super().__init__()
             self.returns, self.successes, self.episodes, self.next_eval = [], [], 0, eval_every
+            self.best_success, self.best_row = 0.0, None
 
         def _on_step(self) -> bool:
             for info in self.locals.get("infos", ()):
@@ -306,6 +308,12 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
                        train_success_rate=float(np.mean(self.successes[recent])) if self.successes else 0.0, **ev)
             rows.append(row)
             _write_curve(rows, out_dir / "curve.csv")
+            if row["eval_success_rate"] > self.best_success:
+                # the best evaluated model so far, shipped if the last one is worse
+                self.best_success, self.best_row = row["eval_success_rate"], row
+                self.model.save(best_zip)
+                if normalize:
+                    vec.save(str(best_vn))
             if progress:
                 print(f"[{algo}] {row['timesteps']:>7d} steps {row['wall_s']:>6.0f} s  episodes {row['episodes']:>5d}  "
                       f"train return {row['train_return_mean']:7.2f} settled {100 * row['train_success_rate']:3.0f} %  "
@@ -345,6 +353,9 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
                 hyperparameters={k: v for k, v in _model_kwargs(algo, seed).items() if k not in ("verbose", "device")},
                 final_eval=rows[-1] if rows else None)
     json_path.write_text(json.dumps(meta, indent=2, default=str) + "\n")
+    if curve.best_row is not None:
+        best_json.write_text(json.dumps(dict(meta, final_eval=curve.best_row, best_of_curve=True), indent=2,
+                                        default=str) + "\n")
     plot_curve(rows, out_dir / "curve.png", title=f"{algo.upper()} on AgileSlew-v1 (ideal sensor), seed {seed}")
     vec.close()
     return meta

@@ -170,7 +170,7 @@ class AgileSlewV1Env(AgileSlewEnv):
     |---|---|---|
     | ``action_mode`` | ``"body_torque"`` | ``"body_torque"`` or ``"wheel"`` |
     | ``sensor`` | ``"tracker"`` | ``"tracker"`` (star tracker, gyro, EKF) or ``"ideal"`` (truth plus noise) |
-    | ``ideal_attitude_noise_arcsec`` | 5 | ideal sensor: white attitude noise, 1σ per axis, ″ |
+    | ``ideal_attitude_noise_arcsec`` | 5 | ideal sensor: white attitude noise, 1σ per axis, ″ (observed as σ); a (low, high) pair draws one level per episode, log-uniform |
     | ``ideal_rate_noise_deg_s`` | 0.001 | ideal sensor: white rate noise, 1σ per axis, °/s (a navigation-to-tactical gyro averaged over 0.1 s) |
     | ``slew_angle_deg_range`` | (5, 180) | target slew angle range, ° |
     | ``max_episode_s`` | ``"auto"`` | time limit, s, or ``"auto"`` |
@@ -211,8 +211,12 @@ class AgileSlewV1Env(AgileSlewEnv):
         for key in ("task", "w_settle"):
             if key in kwargs:
                 raise ValueError(f"AgileSlew-v1 has no argument {key!r}")
-        for name, value in (("ideal_attitude_noise_arcsec", ideal_attitude_noise_arcsec),
-                            ("ideal_rate_noise_deg_s", ideal_rate_noise_deg_s), ("w_rate", w_rate),
+        noise_range = (ideal_attitude_noise_arcsec,) * 2 if np.ndim(ideal_attitude_noise_arcsec) == 0 \
+            else tuple(float(v) for v in ideal_attitude_noise_arcsec)
+        if len(noise_range) != 2 or not 0 < noise_range[0] <= noise_range[1] or not np.isfinite(noise_range[1]):
+            raise ValueError("ideal_attitude_noise_arcsec must be a positive number or a (low, high) pair, "
+                             f"got {ideal_attitude_noise_arcsec!r}")
+        for name, value in (("ideal_rate_noise_deg_s", ideal_rate_noise_deg_s), ("w_rate", w_rate),
                             ("settle_bonus", settle_bonus), ("diverge_error_margin_deg", diverge_error_margin_deg)):
             if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -235,7 +239,8 @@ class AgileSlewV1Env(AgileSlewEnv):
             self.max_episode_s = math.ceil(t / self.control_period_s) * self.control_period_s
         self.action_mode = action_mode
         self.sensor = sensor
-        self.ideal_attitude_noise_rad = float(ideal_attitude_noise_arcsec) * ARCSEC
+        self.ideal_noise_range_rad = (noise_range[0] * ARCSEC, noise_range[1] * ARCSEC)
+        self.ideal_attitude_noise_rad = self.ideal_noise_range_rad[0]
         self.ideal_rate_noise_rad_s = math.radians(float(ideal_rate_noise_deg_s))
         self.w_rate = float(w_rate)
         self.settle_bonus = float(settle_bonus)
@@ -301,6 +306,9 @@ class AgileSlewV1Env(AgileSlewEnv):
             self._disturbance_world = np.zeros(3)
         self.spacecraft.set_external_torque_world(self._disturbance_world)
         self._settled_s = 0.0
+        lo, hi = self.ideal_noise_range_rad
+        if hi > lo:  # a range: one noise level per episode, log-uniform (the tracker's σ varies by scene and rate)
+            self.ideal_attitude_noise_rad = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
         self._ideal = self.ideal_measurement(rng)
 
     def step(self, action):

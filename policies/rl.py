@@ -33,6 +33,8 @@ V1_ID = "startracker/AgileSlew-v1"
 # the training task: -v1 with the ideal sensor (cheap; the tracker's own cost is measured by evaluating on it),
 # slews that cover the agent benchmark's easy level with margin, the env's default settle tolerances
 TRAIN_ENV_KWARGS = dict(sensor="ideal", action_mode="body_torque", slew_angle_deg_range=(10.0, 60.0))
+# the fine-tuning stage: the attitude noise (and so the observed σ) drawn per episode over the range the EKF reports
+ROBUST_ENV_KWARGS = dict(TRAIN_ENV_KWARGS, ideal_attitude_noise_arcsec=(0.5, 20.0))
 # entries of the training env's kwargs that define the policy's interface (kept when evaluating elsewhere)
 INTERFACE_KEYS = ("action_mode",)
 CURVE_FIELDS = ("timesteps", "wall_s", "episodes", "train_return_mean", "train_success_rate", "eval_return_mean",

@@ -14,7 +14,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from policies.rl import ALGOS, CHECKPOINT_DIR, checkpoint_paths, train  # noqa: E402
+from policies.rl import ALGOS, CHECKPOINT_DIR, ROBUST_ENV_KWARGS, TRAIN_ENV_KWARGS, checkpoint_paths, train  # noqa: E402
 
 
 def main(argv=None):
@@ -31,6 +31,8 @@ def main(argv=None):
                     help="SAC: further steps with the entropy coefficient fixed at --finetune-ent-coef")
     ap.add_argument("--finetune-ent-coef", type=float, default=1e-3)
     ap.add_argument("--init", default=None, help="start from this checkpoint's weights")
+    ap.add_argument("--noise-range", action="store_true",
+                    help="ideal sensor noise drawn per episode in 0.5-20 arcsec (the tracker's σ range)")
     ap.add_argument("--ship", action="store_true", help="copy the checkpoint into policies/checkpoints")
     ap.add_argument("--overwrite", action="store_true", help="allow --ship or --out to replace existing files")
     args = ap.parse_args(argv)
@@ -46,6 +48,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     meta = train(args.algo, timesteps, out_dir=out, seed=args.seed, n_envs=n_envs, eval_every=args.eval_every,
                  name=name, demo_episodes=demos,
+                 env_kwargs=ROBUST_ENV_KWARGS if args.noise_range else TRAIN_ENV_KWARGS,
                  finetune_timesteps=args.finetune, finetune_ent_coef=args.finetune_ent_coef, init_from=args.init)
     print(f"trained {args.algo} for {timesteps} steps on {n_envs} env(s) in {time.perf_counter() - t0:.0f} s -> {out}/"
           f"{name}.zip, curve {out}/curve.png")

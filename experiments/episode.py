@@ -96,7 +96,12 @@ def run_episode(
     unknown = sorted(set(options) - set(RESET_OPTIONS))
     if unknown:
         raise ValueError(f"unknown reset option(s) {unknown}; allowed: {', '.join(RESET_OPTIONS)}")
-    env = gym.make(env_id, **dict(env_kwargs or {}))
+    env_kwargs = dict(env_kwargs or {})
+    spec = gym.spec(env_id)
+    if spec.max_episode_steps is not None and "max_episode_s" in env_kwargs and "max_episode_steps" not in env_kwargs:
+        # an id registered with a step limit (AgileSlew-v1): the limit follows the episode time asked for
+        env_kwargs["max_episode_steps"] = int(round(env_kwargs["max_episode_s"] / env_kwargs.get("control_period_s", 0.1)))
+    env = gym.make(env_id, **env_kwargs)
     try:
         pol = _make_policy(policy, env, seed)
         obs, info = env.reset(seed=seed, options=options or None)
@@ -112,15 +117,19 @@ def run_episode(
         while not done:
             action = pol.act(obs)
             obs, reward, terminated, truncated, info = env.step(action)
+            # an action that is not one command per wheel (AgileSlew-v1's body torque): the wheels' own commands
+            wheel_cmd = None if np.shape(action) == max_torque.shape else u.spacecraft.commanded_wheel_torque_Nm
             rows.append(_row(info, reward, action, u.control_period_s, boresight, u.spacecraft.wheel_speeds_rad_s,
-                             wheel_inertia, max_torque))
+                             wheel_inertia, max_torque, wheel_cmd))
             done = terminated or truncated
             n += 1
             if max_steps is not None and n >= max_steps:
                 break
         wall = time.perf_counter() - wall0
         frames = render_frames(u, first_info, rows, seed) if keep_frame and rows else []
-        summary = summarise(rows, first_info, info, terminated=bool(rows) and done and terminated,
+        # an env that also ends episodes on divergence (AgileSlew-v1) says which end it was
+        settled = bool(rows) and done and terminated and not info.get("diverged", False)
+        summary = summarise(rows, first_info, info, terminated=settled,
                             control_period_s=u.control_period_s, settle_hold_s=u.settle_hold_s, wall_s=wall,
                             task=u.task)
         summary.update(env_id=env_id, seed=int(seed), policy=_policy_name(policy),
@@ -196,7 +205,8 @@ def _policy_name(policy) -> str:
     return f"{type(policy).__module__}:{type(policy).__name__}"
 
 
-def _row(info: dict, reward: float, action, control_period_s, boresight, wheel_speed, wheel_inertia, max_torque) -> dict:
+def _row(info: dict, reward: float, action, control_period_s, boresight, wheel_speed, wheel_inertia, max_torque,
+         wheel_cmd=None) -> dict:
     q_true = np.asarray(info["q_true"], dtype=np.float64)
     q_est = np.asarray(info["q_est"], dtype=np.float64)
     # estimate error as a body-frame rotation vector (estimate relative to truth), split about the boresight
@@ -232,7 +242,7 @@ def _row(info: dict, reward: float, action, control_period_s, boresight, wheel_s
         "omega_est_body_deg_s": np.degrees(np.asarray(info.get("omega_est_body", np.zeros(3)), dtype=np.float64)),
         "wheel_speed_rad_s": np.array(wheel_speed, dtype=np.float64),
         "wheel_momentum_Nms": wheel_inertia * np.array(wheel_speed, dtype=np.float64),
-        "wheel_torque_cmd_Nm": a * max_torque,
+        "wheel_torque_cmd_Nm": a * max_torque if wheel_cmd is None else np.asarray(wheel_cmd, dtype=np.float64),
         "action": np.array(action, dtype=np.float64),
     }
 

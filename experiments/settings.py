@@ -116,7 +116,15 @@ def split_settings(settings: dict) -> tuple[str, str, dict, dict]:
         if isinstance(a, bool) or not isinstance(a, (int, float)) or not math.isfinite(a) or not 0.0 <= a <= 180.0:
             raise ValueError(f"slew_angle_deg must be a number in [0, 180] deg, got {a!r}")
         options["slew_angle_deg"] = float(a)
-    return ENV_IDS_BY_TASK[task], str(policy), s, options
+    env_id = ENV_IDS_BY_TASK[task]
+    if task == "slew" and isinstance(policy, str):
+        from policies import policy_env
+
+        # a trained policy runs on the env it was trained for (its id and the arguments of its action space)
+        trained_id, interface = policy_env(policy)
+        if trained_id != env_id:
+            env_id, s = trained_id, {**interface, **s}
+    return env_id, str(policy), s, options
 
 
 def resolve_env_config(env_id: str, env_kwargs: dict, env=None) -> dict:

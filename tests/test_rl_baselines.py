@@ -1,0 +1,101 @@
+"""The shipped RL baselines: loaded by name, acting on AgileSlew-v1, settling the agent benchmark's easy scenarios
+with the real star tracker; the training command's outputs and its refusal to overwrite a checkpoint."""
+
+import csv
+import json
+
+import gymnasium as gym
+import numpy as np
+
+import envs  # noqa: F401
+from experiments.agent_benchmark import run_agent_benchmark, scenario_env, scenarios
+from experiments.episode import run_episode
+from policies import load_policy, policy_env
+from policies.rl import SACPolicy, checkpoint_paths, train
+
+
+def test_load_policy_sac_loads_and_acts_on_its_env():
+    cls = load_policy("sac")
+    assert cls is SACPolicy
+    env_id, kwargs = policy_env("sac")
+    assert env_id == "startracker/AgileSlew-v1" and kwargs == {"action_mode": "body_torque"}
+    env = gym.make(env_id, **kwargs)
+    pol = cls.from_env(env)
+    obs, _ = env.reset(seed=0)
+    a = pol.act(obs)
+    assert a.shape == (3,) and env.action_space.contains(a)
+    # deterministic: the same observation, the same action
+    assert np.array_equal(a, pol.act(obs))
+    env.close()
+
+
+def test_scripted_policies_stay_on_v0():
+    assert policy_env("eigenaxis") == ("startracker/AgileSlew-v0", {})
+    env_id, kwargs = scenario_env("eigenaxis", scenarios("easy", 1)[0][2])
+    assert env_id == "startracker/AgileSlew-v0" and "max_episode_steps" not in kwargs
+    env_id, kwargs = scenario_env("sac", scenarios("easy", 1)[0][2])
+    assert env_id == "startracker/AgileSlew-v1" and kwargs["max_episode_steps"] == 600
+
+
+def test_shipped_sac_slews_the_easy_scenarios_with_the_star_tracker_and_settles_with_the_ideal_sensor():
+    """The agent benchmark's easy level (navigation gyro, paper000 multi-exposure, 60 s, 0.05°/0.05°/s/2 s): with
+    the star tracker the shipped SAC brings 25-35° slews to within 0.2° (it does not settle: docs/rl.md); with the
+    ideal sensor the first two scenarios settle."""
+    row = run_agent_benchmark("sac", difficulties=("easy",), n_per_difficulty=3, progress=False)[0]
+    assert row["env_id"] == "startracker/AgileSlew-v1" and row["sensor"] == "tracker"
+    assert row["final_pointing_error_deg_median"] < 0.2
+    row = run_agent_benchmark("sac", difficulties=("easy",), n_per_difficulty=2, progress=False, sensor="ideal")[0]
+    assert row["sensor"] == "ideal" and row["success_rate"] == 1.0
+    assert row["settle_time_s_median"] < 30.0
+
+
+def test_a_settled_episode_is_a_success_and_a_diverged_one_is_not():
+    seed, angle, kwargs = scenarios("easy", 1)[0]
+    env_id, env_kwargs = scenario_env("sac", kwargs)
+    env_kwargs["sensor"] = "ideal"
+    # full torque about one axis diverges: terminated, but not a success
+    from policies import Policy
+
+    class FullTorque(Policy):
+        def act(self, observation):
+            return np.ones(3, np.float32)
+
+    env = gym.make(env_id, **env_kwargs)
+    res = run_episode(env_id=env_id, policy=FullTorque.from_env(env), seed=seed, env_kwargs=env_kwargs,
+                      reset_options={"slew_angle_deg": angle}).summary
+    env.close()
+    assert not res["success"] and res["steps"] < 600
+
+
+def test_training_writes_checkpoint_metadata_and_curve(tmp_path):
+    meta = train("sac", 300, out_dir=tmp_path, seed=1, n_envs=1, eval_every=150, eval_episodes=1,
+                 demo_episodes=1, progress=False)
+    zip_path, json_path, _ = checkpoint_paths(tmp_path / "sac_agileslew_v1")
+    assert zip_path.exists() and json.loads(json_path.read_text())["env_id"] == "startracker/AgileSlew-v1"
+    assert meta["demo_transitions"] > 0 and meta["train_env_kwargs"]["sensor"] == "ideal"
+    with open(tmp_path / "curve.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) >= 2 and {"eval_success_rate", "eval_final_error_deg_median", "train_return_mean"} <= set(rows[0])
+    assert (tmp_path / "curve.png").stat().st_size > 1000
+    # the checkpoint loads as a policy of its own (instance) env
+    env = gym.make("startracker/AgileSlew-v1", sensor="ideal")
+    pol = SACPolicy.from_env(env, checkpoint=zip_path)
+    assert pol.trained_env() == ("startracker/AgileSlew-v1", {"action_mode": "body_torque"})
+    env.close()
+
+
+def test_train_script_refuses_to_overwrite(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    (tmp_path / "sac_agileslew_v1.zip").write_bytes(b"x")
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, str(root / "scripts" / "train.py"), "--algo", "sac", "--timesteps", "10",
+                        "--out", str(tmp_path)], capture_output=True, text=True, cwd=root)
+    assert r.returncode != 0 and "exists" in r.stderr
+    assert (tmp_path / "sac_agileslew_v1.zip").read_bytes() == b"x"
+    r = subprocess.run([sys.executable, str(root / "scripts" / "train.py"), "--algo", "sac", "--timesteps", "10",
+                        "--out", str(root / "policies" / "checkpoints")], capture_output=True, text=True, cwd=root)
+    assert r.returncode != 0 and "shipped" in r.stderr
+

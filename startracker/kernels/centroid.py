@@ -340,6 +340,7 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
     intensified = sensor[5] > 0.5
     g_dn = sensor[10]
     cosmic_sigma = sensor[11]
+    saturation_dn, bias_dn = sensor[6], sensor[7]
     pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
     opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
     dark, gain_bg, enf2c, read_var, prnu = background[5], background[6], background[7], background[8], background[9]
@@ -356,6 +357,10 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
         q = gain_bg * max(opt0 + gx * (x - cx) + gy * (y - cy), 0.0)
         var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
         thr_e = k_sigma * math.sqrt(var_b)
+        # a pixel is detected when its DN exceeds the threshold, and no pixel reads above saturation: where the
+        # background's threshold is at or above it (stray light washing the detector out) nothing is detected
+        if math.floor((q + dark + thr_e) / g_dn + bias_dn) + 1.0 > saturation_dn:
+            continue
         opt = i < n_optical
         th = _theory(su, gain if opt else 1.0, f2 if opt else 1.0, sigma if opt else cosmic_sigma,
                      sigma_o if opt else cosmic_sigma, c_splash if opt else 1.0, ln, var_b, thr_e, pf, hf, bf, lf, ml,

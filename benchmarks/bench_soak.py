@@ -138,9 +138,10 @@ def _chunk(args):
 
 
 def soak_parallel(n_steps: int, seed: int = 0, procs: int = 1, chunk: int = 10_000, faults_per_min: float = 6.0,
-                  episode_s: float = 30.0, progress: bool = True) -> dict:
+                  episode_s: float = 30.0, progress: bool = True, out_path: str | None = None) -> dict:
     """``n_steps`` in chunks of ``chunk`` steps over ``procs`` processes; counts summed, RSS per process (the
-    first chunk's start, the last chunk's end)."""
+    first chunk's start, the last chunk's end). ``out_path``: the table of the chunks done so far is rewritten
+    there after each chunk (a long run that is stopped still leaves its figures)."""
     jobs = [(i, min(chunk, n_steps - i * chunk), seed, faults_per_min, episode_s)
             for i in range(-(-n_steps // chunk))]
     bar = None
@@ -153,6 +154,19 @@ def soak_parallel(n_steps: int, seed: int = 0, procs: int = 1, chunk: int = 10_0
             bar = None
     t0 = time.perf_counter()
     results = []
+
+    def summary():
+        done = sorted(results, key=lambda x: x[0])
+        out = {k: sum(r[k] for _, r in done) for k in (*COUNT_KEYS, "steps", "episodes")}
+        rss = {}
+        for _, r in done:
+            first = rss.setdefault(r["pid"], [r["rss_start_mb"], r["rss_end_mb"]])
+            first[1] = r["rss_end_mb"]
+        wall = time.perf_counter() - t0
+        out.update(wall_s=wall, steps_per_s=out["steps"] / wall, procs=procs, rss_mb=list(rss.values()),
+                   first_exception=next((r["first_exception"] for _, r in done if r["first_exception"]), None))
+        return out
+
     if procs <= 1:
         it = map(_chunk, jobs)
         pool = None
@@ -165,21 +179,14 @@ def soak_parallel(n_steps: int, seed: int = 0, procs: int = 1, chunk: int = 10_0
         results.append((i, res))
         if bar is not None:
             bar.update(res["steps"])
+        if out_path:
+            Path(out_path).write_text(table(summary()) + "\n")
     if pool is not None:
         pool.close()
         pool.join()
     if bar is not None:
         bar.close()
-    results.sort(key=lambda x: x[0])
-    out = {k: sum(r[k] for _, r in results) for k in (*COUNT_KEYS, "steps", "episodes")}
-    rss = {}
-    for _, r in results:
-        first = rss.setdefault(r["pid"], [r["rss_start_mb"], r["rss_end_mb"]])
-        first[1] = r["rss_end_mb"]
-    wall = time.perf_counter() - t0
-    out.update(wall_s=wall, steps_per_s=out["steps"] / wall, procs=procs, rss_mb=list(rss.values()),
-               first_exception=next((r["first_exception"] for _, r in results if r["first_exception"]), None))
-    return out
+    return summary()
 
 
 def table(res: dict) -> str:
@@ -203,9 +210,11 @@ def main():
     ap.add_argument("--procs", type=int, default=1)
     ap.add_argument("--chunk", type=int, default=10_000)
     ap.add_argument("--faults-per-min", type=float, default=6.0)
+    ap.add_argument("--out", default=None, help="file the table so far is rewritten to after every chunk")
     args = ap.parse_args()
     n = 10_000 if args.quick else args.steps
-    res = soak_parallel(n, seed=args.seed, procs=args.procs, chunk=args.chunk, faults_per_min=args.faults_per_min)
+    res = soak_parallel(n, seed=args.seed, procs=args.procs, chunk=args.chunk, faults_per_min=args.faults_per_min,
+                        out_path=args.out)
     print(table(res))
 
 

@@ -64,7 +64,9 @@ def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, p
         var_peak = peak * peak * f2 / s_safe + gain * f2 * c_splash * peak + var_b
     else:
         var_peak = gain * f2 * peak + var_b
-    cp = peak_f * peak
+    # the brightest pixel near the centre beats the mean peak by photon clumping: the boost fades as the
+    # background's share of the peak's variance grows (stray light)
+    cp = peak * (1.0 + (peak_f - 1.0) * (var_peak - var_b) / var_peak)
     p_det = _ndtr((cp - thr_e) / math.sqrt(var_peak))
     # a barely detected spot is an upward fluctuation that keeps its few brightest pixels: floor on a
     a = max(math.log(max(cp / max(thr_e, 1e-12), 1e-300)), min_log_ratio)
@@ -110,8 +112,10 @@ def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_
     The model (σ_e² = σ² + 1/12 for pixel integration; L the smear length; G the gain; F² the excess noise):
 
     * peak pixel ``P = G S φ(L) / (2π σ_e²)``, ``φ(L) = (√(2π) σ_e / L) erf(L / (2√2 σ_e))`` (1 for a still spot),
-      the peak of a uniform streak convolved with the PSF; detection probability ``Φ((c_peak P − T) / sd(P))``;
-    * threshold region: ``a = max(ln(c_peak P / T), min_log_ratio)``, radius ``R = σ_e √(2a)``, captured fraction
+      the peak of a uniform streak convolved with the PSF; effective peak ``P' = P (1 + (c_peak − 1) w)`` with w
+      the photon share of the peak's variance ``sd(P)²`` (the brightest of the central pixels beats the mean by
+      photon clumping, which a background-dominated noise dilutes); detection probability ``Φ((P' − T) / sd(P))``;
+    * threshold region: ``a = max(ln(P' / T), min_log_ratio)``, radius ``R = σ_e √(2a)``, captured fraction
       ``f = 1 − e^{−a}``, truncated second moment ``m2 = σ_e² (1 − a e^{−a} / f)``;
     * centroid variance per axis = photon term (``F² m2 / (S f)``, plus ``L²/12`` along; with an intensifier the
       photoelectron scatter ``F² σ_o² / S`` plus the splash shape noise) + background term (``σ_b² Σ_Ω x² / (G S

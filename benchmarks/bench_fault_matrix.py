@@ -1,7 +1,9 @@
 """Fault matrix: every fault at several severities over many seeds, in AttitudeHold and during a slew.
 
-For each (fault, severity): wrong attitudes reported as valid (target 0), re-acquisition time (median, p99),
-attitude error during and after the fault, EKF NEES (mean 3 when consistent), share of frames in track.
+For each (fault, severity): wrong and confidently wrong attitude samples and EKF estimates (the verdicts of
+``bench_soak.step_verdicts``; target 0 confidently wrong), re-acquisition time (median, p99), matched stars and
+attitude error during the fault, error after it, EKF NEES (mean 3 when consistent), share of frames in track
+(over the whole episode and during the fault).
 
     python benchmarks/bench_fault_matrix.py [--quick] [--seeds N]
 """
@@ -19,12 +21,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import gymnasium as gym  # noqa: E402
 
 import envs  # noqa: E402,F401
+from bench_soak import step_verdicts  # noqa: E402
 
 T0, DUR, AFTER = 3.0, 3.0, 6.0
 
 MATRIX = [
     ("none", [None]),
-    ("stray_light", [40.0, 20.0, 8.0]),
+    ("stray_light", [40.0, 20.0, 15.0, 10.0, 8.0]),
     ("false_objects", [0.1, 0.3, 0.5]),
     ("dropout", [0.3, 0.6, 0.9]),
     ("saturated", [1.0]),
@@ -54,13 +57,16 @@ def run_one(kind, severity, seed, task):
     dur = [i for i in rows if T0 <= i["time_s"] <= T0 + DUR]
     aft = [i for i in rows if i["time_s"] > T0 + DUR + 2.0]
     nees = [i["ekf_nees"] for i in rows if i["ekf_nees"] is not None]
+    verdicts = np.sum([step_verdicts(i) for i in rows], axis=0)
     return dict(
-        wrong=rows[-1]["n_wrong_samples_total"],
+        verdicts=verdicts,
         reacq=rows[-1]["reacquisition_times_s"],
+        stars_during=float(np.mean([i["n_stars"] for i in dur])) if dur else np.nan,
         err_during=float(np.median([i["attitude_error_arcsec"] for i in dur])) if dur else np.nan,
         err_after=float(np.median([i["attitude_error_arcsec"] for i in aft])) if aft else np.nan,
         nees=float(np.mean(nees)) if nees else np.nan,
         track=float(np.mean([i["tracker_mode"] == "track" for i in rows])),
+        track_during=float(np.mean([i["tracker_mode"] == "track" for i in dur])) if dur else np.nan,
     )
 
 
@@ -81,15 +87,19 @@ def main():
     for task, kind, sev in it:
         res = [run_one(kind, sev, seed, task) for seed in range(n_seeds)]
         reacq = [x for r in res for x in r["reacq"]]
+        v = np.sum([r["verdicts"] for r in res], axis=0)
         rows.append(dict(
             task=task.split("/")[1].split("-")[0], fault=kind, severity="-" if sev is None else f"{sev:g}",
-            runs=len(res), wrong=int(sum(r["wrong"] for r in res)),
+            runs=len(res), wrong_samples=int(v[0]), confidently_wrong_samples=int(v[1]), wrong_estimates=int(v[2]),
+            confidently_wrong_estimates=int(v[3]),
             reacq_med_s=float(np.median(reacq)) if reacq else np.nan,
             reacq_p99_s=float(np.percentile(reacq, 99)) if reacq else np.nan,
+            stars_during=float(np.nanmean([r["stars_during"] for r in res])),
             err_during_arcsec=float(np.nanmedian([r["err_during"] for r in res])),
             err_after_arcsec=float(np.nanmedian([r["err_after"] for r in res])),
             nees_mean=float(np.nanmean([r["nees"] for r in res])),
             track_share=float(np.mean([r["track"] for r in res])),
+            track_during=float(np.nanmean([r["track_during"] for r in res])),
         ))
     keys = list(rows[0])
     print(f"fault matrix: fault on [{T0}, {T0 + DUR}] s, {n_seeds} seeds per cell; NEES is 3 when the EKF is consistent")
@@ -97,7 +107,9 @@ def main():
     print("|" + "---|" * len(keys))
     for r in rows:
         print("| " + " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in r.values()) + " |")
-    print(f"total wrong attitudes reported as valid: {sum(r['wrong'] for r in rows)}")
+    for k in ("confidently_wrong_samples", "confidently_wrong_estimates"):
+        print(f"total {k}: {sum(r[k] for r in rows)}")
+    print("wrong: the error fails the verdict (steps for the estimate); confidently wrong: and it is flagged valid")
 
 
 if __name__ == "__main__":

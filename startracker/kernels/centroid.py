@@ -618,7 +618,8 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
     its motion from the first to the last path point), debris d in exposure i (row ``N M + i D + d``; a straight
     dash from ``xy0 + v t_start`` to ``xy0 + v t_end``), cosmic ray c (row ``N (M + D) + c``; a track of direct
     charge with σ = ``cosmic_sigma_px``). A candidate on the detector with a positive signal is detected when
-    ``u_detect < p_det`` (:func:`spot_theory` at its background); its centroid is the truth plus
+    ``u_detect < p_det`` (:func:`spot_theory` at its background) and a pixel there can still exceed the threshold
+    (``floor(background + kσ) + 1 <= saturation_dn``, in DN); its centroid is the truth plus
     ``z0 √var_along`` along and ``z1 √var_cross`` across the motion, its charge ``max(cap + z2 √var_cap, 1e-3)``.
     Detected spots whose expected threshold regions touch (distance < sum of ``R + L/2``, R without the peak
     factor) merge into one, as connected pixels do: intensity-weighted centroid, summed charge, area and peak,

@@ -4,7 +4,7 @@ For each (fault, severity), the verdicts (an attitude is *wrong* when its true e
 covariance, at false-alarm probability 1e-9; *confidently wrong* when it is also flagged valid): wrong and confidently
 wrong tracker samples (valid: the filter accepted it), wrong and confidently wrong estimates (one verdict per step;
 valid: the estimate's own flag), all targets 0 for the confident ones; then the re-acquisition time (median, p99),
-the attitude error during and after the fault, the EKF NEES (mean 3 when consistent; valid steps) and the share of
+the matched stars and attitude error during the fault, the error after it, the EKF NEES (mean 3 when consistent; valid steps) and the share of
 frames in track.
 
     python benchmarks/bench_fault_matrix.py [--quick] [--seeds N]
@@ -29,7 +29,7 @@ VERDICT_KEYS = ("wrong_samples", "confidently_wrong_samples", "wrong_estimates",
 
 MATRIX = [
     ("none", [None]),
-    ("stray_light", [40.0, 20.0, 8.0]),
+    ("stray_light", [40.0, 20.0, 15.0, 10.0, 8.0]),
     ("false_objects", [0.1, 0.3, 0.5]),
     ("dropout", [0.3, 0.6, 0.9]),
     ("saturated", [1.0]),
@@ -66,10 +66,12 @@ def run_one(kind, severity, seed, task):
         wrong_estimates=last["n_wrong_estimates_total"],
         confidently_wrong_estimates=last["n_confidently_wrong_estimates_total"],
         reacq=rows[-1]["reacquisition_times_s"],
+        stars_during=float(np.mean([i["n_stars"] for i in dur])) if dur else np.nan,
         err_during=float(np.median([i["attitude_error_arcsec"] for i in dur])) if dur else np.nan,
         err_after=float(np.median([i["attitude_error_arcsec"] for i in aft])) if aft else np.nan,
         nees=float(np.mean(nees)) if nees else np.nan,
         track=float(np.mean([i["tracker_mode"] == "track" for i in rows])),
+        track_during=float(np.mean([i["tracker_mode"] == "track" for i in dur])) if dur else np.nan,
     )
 
 
@@ -102,10 +104,12 @@ def main():
             **{k: int(sum(r[k] for r in res)) for k in VERDICT_KEYS},
             reacq_med_s=float(np.median(reacq)) if reacq else np.nan,
             reacq_p99_s=float(np.percentile(reacq, 99)) if reacq else np.nan,
+            stars_during=float(np.nanmean([r["stars_during"] for r in res])),
             err_during_arcsec=float(np.nanmedian([r["err_during"] for r in res])),
             err_after_arcsec=float(np.nanmedian([r["err_after"] for r in res])),
             nees_mean=float(np.nanmean([r["nees"] for r in res])),
             track_share=float(np.mean([r["track"] for r in res])),
+            track_during=float(np.nanmean([r["track_during"] for r in res])),
         ))
     keys = list(rows[0])
     print(f"fault matrix: fault on [{T0}, {T0 + DUR}] s, {n_seeds} seeds per cell; NEES is 3 when the EKF is consistent")

@@ -348,7 +348,7 @@ def reference_spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, v
         var_peak = peak**2 * f2 / s_safe + gain * f2 * c_splash * peak + var_b
     else:
         var_peak = gain * f2 * peak + var_b
-    cp = err.peak_factor * peak
+    cp = peak * (1.0 + (err.peak_factor - 1.0) * (var_peak - var_b) / var_peak)
     p_det = ndtr((cp - thr_e) / np.sqrt(var_peak))
     a = np.maximum(np.log(np.maximum(cp / np.maximum(thr_e, 1e-12), 1e-300)), err.min_log_ratio)
     r2 = 2.0 * se2 * a

@@ -66,8 +66,9 @@ class CentroidErrorModel:
     Attributes
     ----------
     peak_factor : float
-        Multiplies the spot's expected peak pixel in the detection probability and the threshold radius
-        (the brightest of several pixels near the centre beats the mean peak).
+        c in the effective peak ``P (1 + (c − 1) w)`` of the detection probability and the threshold radius, w
+        the photon share of the peak pixel's variance (the brightest of several pixels near the centre beats
+        the mean peak by photon clumping; a background-dominated noise, as under stray light, dilutes it).
     photon_factor : float
         Multiplies the photon (shot and gain) term of the centroid variance.
     background_factor : float
@@ -99,17 +100,17 @@ class CentroidErrorModel:
 # calibrate_error_model(SensorModel.preset(name), np.random.default_rng(2025), n_frames=16, method=method);
 # tests/test_centroid.py checks that they still reproduce the pixel path.
 DEFAULT_ERROR_MODELS = {
-    ("paper000", "com"): CentroidErrorModel(1.425, 0.758, 1.011, 2.886, 0.5, "com"),
-    ("paper000", "gaussian"): CentroidErrorModel(1.425, 3.417, 0.001, 0.001, 0.5, "gaussian"),
-    ("paper000_cmos", "com"): CentroidErrorModel(1.200, 0.542, 1.494, 0.182, 0.5, "com"),
-    ("paper000_cmos", "gaussian"): CentroidErrorModel(1.200, 12.367, 0.583, 0.345, 0.5, "gaussian"),
+    ("paper000", "com"): CentroidErrorModel(1.360, 1.123, 1.630, 0.001, 0.5, "com"),
+    ("paper000", "gaussian"): CentroidErrorModel(1.360, 3.307, 0.001, 1.426, 0.5, "gaussian"),
+    ("paper000_cmos", "com"): CentroidErrorModel(1.345, 1.178, 1.366, 0.037, 0.5, "com"),
+    ("paper000_cmos", "gaussian"): CentroidErrorModel(1.345, 13.915, 0.795, 0.205, 0.5, "gaussian"),
     # each preset's detector on its own camera at its own exposure (startracker.spec.preset_spec):
     # calibrate_error_model(spec.detector, np.random.default_rng(2025), camera=spec.camera,
     #                       exposure_s=spec.exposure.exposure_s, n_frames=16)
-    ("zy3", "com"): CentroidErrorModel(1.025, 1.456, 0.905, 0.110, 0.5, "com"),
-    ("paper003", "com"): CentroidErrorModel(1.060, 0.818, 0.983, 0.125, 0.5, "com"),
-    ("paper004", "com"): CentroidErrorModel(1.085, 0.539, 1.762, 0.201, 0.5, "com"),
-    ("paper004_3cmos", "com"): CentroidErrorModel(1.085, 0.539, 1.762, 0.201, 0.5, "com"),
+    ("zy3", "com"): CentroidErrorModel(1.065, 0.918, 0.898, 0.128, 0.5, "com"),
+    ("paper003", "com"): CentroidErrorModel(1.185, 1.047, 0.936, 0.133, 0.5, "com"),
+    ("paper004", "com"): CentroidErrorModel(1.165, 1.371, 1.514, 0.011, 0.5, "com"),
+    ("paper004_3cmos", "com"): CentroidErrorModel(1.165, 1.371, 1.514, 0.011, 0.5, "com"),
 }
 
 
@@ -380,6 +381,22 @@ def _theory_for_scene(scene: Scene, model: SensorModel, k_sigma: float, err: Cen
                         k_sigma * np.sqrt(var_b), err, model.intensified)
 
 
+def _brighter_sky(model: SensorModel, scene: Scene, sigma_ratio: float) -> SensorModel:
+    """``model`` with its sky brightened until the background noise σ is ``sigma_ratio`` times its own (the
+    optical charge q solves ``enf2_c q + PRNU² q² = (ratio² − 1) var_e`` on top of the model's sky)."""
+    if sigma_ratio == 1.0:
+        return model
+    if not sigma_ratio > 1.0:
+        raise ValueError(f"background_sigma_ratios must be >= 1, got {sigma_ratio}")
+    bg = background_field(scene, model)
+    extra = (sigma_ratio**2 - 1.0) * float(bg.var_e(bg.cx, bg.cy))
+    a, b = bg.prnu_sigma**2, bg.enf2_c
+    q = extra / b if a == 0.0 else (-b + math.sqrt(b * b + 4.0 * a * extra)) / (2.0 * a)
+    q_sky = bg.gain * max(bg.opt0, 1e-300)
+    mag = model.sky_mag_per_arcsec2 - 2.5 * math.log10((q_sky + q) / q_sky)
+    return replace(model, sky_mag_per_arcsec2=float(mag))
+
+
 def calibrate_error_model(
     model: SensorModel,
     rng: np.random.Generator,
@@ -391,13 +408,16 @@ def calibrate_error_model(
     k_sigma: float = 5.0,
     method: str = "com",
     min_log_ratio: float = 0.5,
+    background_sigma_ratios=(1.0, 6.0),
 ) -> CentroidErrorModel:
     """Fit the centroid-fidelity factors to the pixel path (sparse rendering + centroiding).
 
     Stars on a 60-px grid, magnitudes spanning certain to rare detection, one exposure per frame at each
-    streak length; no false objects. ``peak_factor`` maximises the Bernoulli likelihood of the pixel path's
-    detections; the photon, background and pixel-locking factors are a non-negative weighted least-squares
-    fit of the squared centroid errors (along and across the motion) on the three variance terms.
+    streak length and background level; no false objects. ``peak_factor`` maximises the Bernoulli likelihood of
+    the pixel path's detections; the photon, background and pixel-locking factors are a non-negative weighted
+    least-squares fit of the squared centroid errors (along and across the motion) on the three variance terms.
+    The background levels (the model's sky, and a brighter sky whose pixel noise σ is the given multiple of it,
+    as stray light makes it) let the fit tell the photon terms from the background terms.
 
     Parameters
     ----------
@@ -414,6 +434,8 @@ def calibrate_error_model(
     k_sigma : float
     method : {"com", "gaussian"}
     min_log_ratio : float
+    background_sigma_ratios : sequence of float
+        Background noise σ of the calibration frames, in units of the model's own sky (>= 1; 1: the model's sky).
 
     Returns
     -------
@@ -431,25 +453,27 @@ def calibrate_error_model(
     plan = ExposurePlan(1, tau, frame_period_s=max(0.1, tau))
     k = check_k_sigma(k_sigma)
     quiet = replace(model, hot_pixel_fraction=0.0, cosmic_ray_rate_per_cm2_s=0.0, debris_rate_per_frame=0.0)
-    # magnitude where a still spot's peak equals the threshold
     probe = grid_scene(cam, plan, 0.0, 0.0, 0.0, cam.resolution[0] / 2, rng)
-    th0 = _theory_for_scene(probe, quiet, k, CentroidErrorModel(min_log_ratio=min_log_ratio, method=method))
-    thr_e = k * math.sqrt(float(background_field(probe, quiet).var_e(0, 0)) + model.gain_e_per_dn**2 / 12)
-    v_thr = float(2.5 * np.log10(np.median(th0["peak"]) / thr_e))
-    rows = []
-    for smear in smear_px:
-        speed = float(smear) / tau
-        for _ in range(int(n_frames)):
-            sc = grid_scene(cam, plan, v_thr - 4.0, v_thr + 0.8, float(speed), 60.0, rng)
-            det = simulate_detections(sc, quiet, rng, "pixel", k_sigma=k, method=method, include_false=False)
-            found, e = _star_errors(det, sc)
-            rows.append((sc, found, e))
     base = CentroidErrorModel(min_log_ratio=min_log_ratio, method=method)
+    rows = []
+    for ratio in background_sigma_ratios:
+        md = _brighter_sky(quiet, probe, float(ratio))
+        # magnitude where a still spot's peak equals the threshold
+        th0 = _theory_for_scene(probe, md, k, base)
+        thr_e = k * math.sqrt(float(background_field(probe, md).var_e(0, 0)) + model.gain_e_per_dn**2 / 12)
+        v_thr = float(2.5 * np.log10(np.median(th0["peak"]) / thr_e))
+        for smear in smear_px:
+            speed = float(smear) / tau
+            for _ in range(int(n_frames)):
+                sc = grid_scene(cam, plan, v_thr - 4.0, v_thr + 0.8, float(speed), 60.0, rng)
+                det = simulate_detections(sc, md, rng, "pixel", k_sigma=k, method=method, include_false=False)
+                found, e = _star_errors(det, sc)
+                rows.append((sc, md, found, e))
 
     def loglik(pf):
         ll = 0.0
-        for sc, found, _ in rows:
-            p = np.clip(_theory_for_scene(sc, quiet, k, replace(base, peak_factor=pf))["p_det"], 1e-9, 1 - 1e-9)
+        for sc, md, found, _ in rows:
+            p = np.clip(_theory_for_scene(sc, md, k, replace(base, peak_factor=pf))["p_det"], 1e-9, 1 - 1e-9)
             vis = sc.visible.reshape(-1)
             ll += np.sum(np.where(found, np.log(p), np.log1p(-p))[vis])
         return ll
@@ -459,8 +483,8 @@ def calibrate_error_model(
     fine = np.linspace(pf - 0.05, pf + 0.05, 21)
     pf = float(fine[np.argmax([loglik(g) for g in fine])])
     X, y = [], []
-    for sc, found, e in rows:
-        th = _theory_for_scene(sc, quiet, k, replace(base, peak_factor=pf))
+    for sc, md, found, e in rows:
+        th = _theory_for_scene(sc, md, k, replace(base, peak_factor=pf))
         ok = found & np.all(np.abs(e) < 3.0, axis=1)
         for j, ax in enumerate(("along", "cross")):
             X.append(np.column_stack([th["ph_" + ax][ok], th["bg_" + ax][ok], th["lock_" + ax][ok]]))

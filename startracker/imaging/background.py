@@ -38,6 +38,10 @@ class BackgroundField:
 
     ``optical_pe(x, y) = opt0 + opt_dx (x − cx) + opt_dy (y − cy)`` photoelectrons accumulated over the N
     exposures (sky + stray light); dark current ``dark_e`` over the integration window.
+
+    ``blinded`` says a bright body is inside its baffle's exclusion cone (a design limit). Whether stars are lost
+    follows from the level itself, pixel by pixel, in both fidelities: no pixel reads above the detector's
+    saturation, so where ``floor(threshold_dn) + 1`` exceeds it nothing can be detected.
     """
 
     opt0: float

@@ -64,7 +64,9 @@ def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, p
         var_peak = peak * peak * f2 / s_safe + gain * f2 * c_splash * peak + var_b
     else:
         var_peak = gain * f2 * peak + var_b
-    cp = peak_f * peak
+    # the brightest pixel near the centre beats the mean peak by photon clumping: the boost fades as the
+    # background's share of the peak's variance grows (stray light)
+    cp = peak * (1.0 + (peak_f - 1.0) * (var_peak - var_b) / var_peak)
     p_det = _ndtr((cp - thr_e) / math.sqrt(var_peak))
     # a barely detected spot is an upward fluctuation that keeps its few brightest pixels: floor on a
     a = max(math.log(max(cp / max(thr_e, 1e-12), 1e-300)), min_log_ratio)
@@ -110,8 +112,10 @@ def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_
     The model (σ_e² = σ² + 1/12 for pixel integration; L the smear length; G the gain; F² the excess noise):
 
     * peak pixel ``P = G S φ(L) / (2π σ_e²)``, ``φ(L) = (√(2π) σ_e / L) erf(L / (2√2 σ_e))`` (1 for a still spot),
-      the peak of a uniform streak convolved with the PSF; detection probability ``Φ((c_peak P − T) / sd(P))``;
-    * threshold region: ``a = max(ln(c_peak P / T), min_log_ratio)``, radius ``R = σ_e √(2a)``, captured fraction
+      the peak of a uniform streak convolved with the PSF; effective peak ``P' = P (1 + (c_peak − 1) w)`` with w
+      the photon share of the peak's variance ``sd(P)²`` (the brightest of the central pixels beats the mean by
+      photon clumping, which a background-dominated noise dilutes); detection probability ``Φ((P' − T) / sd(P))``;
+    * threshold region: ``a = max(ln(P' / T), min_log_ratio)``, radius ``R = σ_e √(2a)``, captured fraction
       ``f = 1 − e^{−a}``, truncated second moment ``m2 = σ_e² (1 − a e^{−a} / f)``;
     * centroid variance per axis = photon term (``F² m2 / (S f)``, plus ``L²/12`` along; with an intensifier the
       photoelectron scatter ``F² σ_o² / S`` plus the splash shape noise) + background term (``σ_b² Σ_Ω x² / (G S
@@ -340,6 +344,7 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
     intensified = sensor[5] > 0.5
     g_dn = sensor[10]
     cosmic_sigma = sensor[11]
+    saturation_dn, bias_dn = sensor[6], sensor[7]
     pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
     opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
     dark, gain_bg, enf2c, read_var, prnu = background[5], background[6], background[7], background[8], background[9]
@@ -356,6 +361,10 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
         q = gain_bg * max(opt0 + gx * (x - cx) + gy * (y - cy), 0.0)
         var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
         thr_e = k_sigma * math.sqrt(var_b)
+        # a pixel is detected when its DN exceeds the threshold, and no pixel reads above saturation: where the
+        # background's threshold is at or above it (stray light washing the detector out) nothing is detected
+        if math.floor((q + dark + thr_e) / g_dn + bias_dn) + 1.0 > saturation_dn:
+            continue
         opt = i < n_optical
         th = _theory(su, gain if opt else 1.0, f2 if opt else 1.0, sigma if opt else cosmic_sigma,
                      sigma_o if opt else cosmic_sigma, c_splash if opt else 1.0, ln, var_b, thr_e, pf, hf, bf, lf, ml,
@@ -609,7 +618,8 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
     its motion from the first to the last path point), debris d in exposure i (row ``N M + i D + d``; a straight
     dash from ``xy0 + v t_start`` to ``xy0 + v t_end``), cosmic ray c (row ``N (M + D) + c``; a track of direct
     charge with σ = ``cosmic_sigma_px``). A candidate on the detector with a positive signal is detected when
-    ``u_detect < p_det`` (:func:`spot_theory` at its background); its centroid is the truth plus
+    ``u_detect < p_det`` (:func:`spot_theory` at its background) and a pixel there can still exceed the threshold
+    (``floor(background + kσ) + 1 <= saturation_dn``, in DN); its centroid is the truth plus
     ``z0 √var_along`` along and ``z1 √var_cross`` across the motion, its charge ``max(cap + z2 √var_cap, 1e-3)``.
     Detected spots whose expected threshold regions touch (distance < sum of ``R + L/2``, R without the peak
     factor) merge into one, as connected pixels do: intensity-weighted centroid, summed charge, area and peak,

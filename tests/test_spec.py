@@ -242,9 +242,12 @@ def test_detector_sigma_is_the_weighted_rms_of_the_theory():
     assert s.detector_sigma_px() == pytest.approx(expected)
     assert s.centroid_sigma_px() == pytest.approx(s.tracker.sigma_margin * expected)
     assert np.all(moving[p1 > 0.5] > still[p1 > 0.5])  # a streak's centroid is less certain
-    # a quieter detector gives a smaller σ
+    # a quieter detector gives a smaller σ star by star (its population RMS may not fall: it detects fainter stars)
     quiet = StarTrackerSpec.from_dict({"preset": "paper004", "detector": {"read_noise_e": 0.5}})
-    assert quiet.detector_sigma_px() < s.detector_sigma_px()
+    still_q, p_q = predicted_centroid_sigma_px(quiet.detector, quiet.camera, v, tau)
+    both = (p0 > 0.5) & (p_q > 0.5)
+    assert both.sum() > 20 and np.all(still_q[both] < still[both])
+    assert np.all(p_q >= p0 - 1e-12)  # and detects at least as much
     assert isinstance(s.detector, SensorModel)
 
 

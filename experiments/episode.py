@@ -222,6 +222,7 @@ def _row(info: dict, reward: float, action, control_period_s, boresight, wheel_s
         "omega_true_norm_deg_s": float(np.degrees(np.linalg.norm(info["omega_true_body"]))),
         "omega_est_norm_deg_s": float(np.degrees(np.linalg.norm(info.get("omega_est_body", np.zeros(3))))),
         "tracker_mode": info["tracker_mode"],
+        "estimate_valid": bool(info["estimate_valid"]),
         "n_stars": info["n_stars"],
         "exposures_per_frame": info["exposures_per_frame"],
         "n_attitude_samples": info["n_attitude_samples"],
@@ -253,7 +254,8 @@ def summarise(rows, first_info, last_info, terminated: bool, control_period_s: f
 
     Keys: slew_angle_deg, success, settle_time_s (first instant of the final settled hold, NaN if never),
     final_pointing_error_deg, attitude_error_rms_arcsec / _max_arcsec / _p95_arcsec (estimate vs truth over the
-    steps where the tracker held lock), update_rate_hz_mean / _max, matching_latency_ms_p50 / _p99,
+    steps where the tracker held lock and the estimate was valid: one that says it is not, e.g. before the first fix
+    has reached the filter, is not scored as an error), update_rate_hz_mean / _max, matching_latency_ms_p50 / _p99,
     mode_share_lost / _acquire / _track, lost_lock_events, control_effort (Σ mean(a²) dt), steps, sim_time_s,
     wall_s, steps_per_s.
 
@@ -265,12 +267,13 @@ def summarise(rows, first_info, last_info, terminated: bool, control_period_s: f
     err = np.array([r["attitude_error_arcsec"] for r in rows]) if n else np.zeros(0)
     modes = np.array([r["tracker_mode"] for r in rows]) if n else np.zeros(0, dtype=str)
     track = modes == "track"
+    valid = np.array([r.get("estimate_valid", True) for r in rows], dtype=bool) if n else np.zeros(0, dtype=bool)
     lat = np.array([r["matching_latency_ms"] for r in rows if r["tracker_mode"] == "track"])
     rate = np.array([r["update_rate_hz"] for r in rows]) if n else np.zeros(0)
     effort = float(sum(-r["reward_effort"] for r in rows))
     sim_time = rows[-1]["time_s"] if n else 0.0
     settle_time = sim_time - settle_hold_s if terminated else float("nan")
-    e_track = err[track]
+    e_track = err[track & valid]
     return {
         "slew_angle_deg": float(first_info["pointing_error_deg"]),
         "success": bool(terminated),

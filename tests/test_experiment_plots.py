@@ -44,3 +44,19 @@ def test_hold_and_campaign_plots(tmp_path):
     summary = [{"matcher": m, "runs": 2, "successes": 1, "success_rate": 0.5, "settle_time_s_median": 9.0,
                 "settle_time_s_p10": 8.5, "settle_time_s_p90": 9.5} for m in ("dkvlut", "kdtree")]
     assert plot_campaign(tmp_path, summary, ["matcher"]).stat().st_size > 5_000
+
+
+def test_episode_error_figures_leave_out_estimates_flagged_invalid():
+    """An estimate that says it is invalid (before the first fix reaches the filter) is not scored as an error."""
+    from experiments.episode import summarise
+
+    def row(t, err, valid):
+        return dict(time_s=t, attitude_error_arcsec=err, tracker_mode="track", estimate_valid=valid,
+                    matching_latency_ms=1.0, update_rate_hz=10.0, reward_effort=0.0, pointing_error_deg=1.0)
+
+    rows = [row(0.1, 2.8e5, False)] + [row(0.1 * (i + 2), 3.0 + i % 2, True) for i in range(9)]
+    info = dict(pointing_error_deg=1.0, lost_lock_events=0)
+    s = summarise(rows, info, info, terminated=False, control_period_s=0.1, settle_hold_s=2.0)
+    e = [3.0 + i % 2 for i in range(9)]
+    assert s["attitude_error_max_arcsec"] == 4.0
+    assert abs(s["attitude_error_rms_arcsec"] - (sum(x * x for x in e) / 9) ** 0.5) < 1e-12

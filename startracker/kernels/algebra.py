@@ -21,6 +21,7 @@ __all__ = [
     "quat_normalize_canonical",
     "quat_to_rotation",
     "quat_from_rotation",
+    "mahalanobis3",
 ]
 
 
@@ -127,3 +128,28 @@ def quat_from_rotation(m):
                     q[j] = -q[j]
             break
     return q
+
+
+@njit(cache=True)
+def mahalanobis3(s, d0, d1, d2):
+    """``dᵀ S⁻¹ d`` for a symmetric (3, 3) ``s`` and the vector (d0, d1, d2), by Cholesky ``S = L Lᵀ`` (then
+    ``|L⁻¹ d|²``); ``inf`` when ``s`` is not positive definite."""
+    a00 = s[0, 0]
+    if not a00 > 0.0:
+        return math.inf
+    l00 = math.sqrt(a00)
+    l10 = s[1, 0] / l00
+    l20 = s[2, 0] / l00
+    a11 = s[1, 1] - l10 * l10
+    if not a11 > 0.0:
+        return math.inf
+    l11 = math.sqrt(a11)
+    l21 = (s[2, 1] - l20 * l10) / l11
+    a22 = s[2, 2] - l20 * l20 - l21 * l21
+    if not a22 > 0.0:
+        return math.inf
+    l22 = math.sqrt(a22)
+    u0 = d0 / l00
+    u1 = (d1 - l10 * u0) / l11
+    u2 = (d2 - l20 * u0 - l21 * u1) / l22
+    return u0 * u0 + u1 * u1 + u2 * u2

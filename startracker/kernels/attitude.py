@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from startracker.kernels.algebra import det3_entries, quat_to_rotation
+from startracker.kernels.algebra import det3_entries, quat_normalize_canonical, quat_to_rotation
 
 __all__ = ["davenport_quaternion", "symmetric_min_eigenvalue", "solve_wahba_one", "solve_wahba_batch", "RAD_TO_ARCSEC"]
 
@@ -109,18 +109,10 @@ def davenport_quaternion(s, q):
         for j in range(4):
             acc += _cofactor4(m, j, i) * q0[j]  # adj(M) = cofactor matrix transposed
         q[i] = acc
-    nq = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    if not nq > 0.0:  # M exactly singular at the Rayleigh quotient: q0 is already the eigenvector
-        for i in range(4):
+    if not q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] > 0.0:
+        for i in range(4):  # M exactly singular at the Rayleigh quotient: q0 is already the eigenvector
             q[i] = q0[i]
-        nq = 1.0
-    sign = 1.0
-    for i in range(4):
-        if q[i] != 0.0:
-            sign = 1.0 if q[i] > 0.0 else -1.0
-            break
-    for i in range(4):
-        q[i] = sign * q[i] / nq
+    quat_normalize_canonical(q)
 
 
 @njit(cache=True)

@@ -25,6 +25,7 @@ __all__ = [
     "quat_conjugate",
     "quat_multiply",
     "quat_relative_rotvec",
+    "relative_rotvec_rows",
     "quat_to_matrix",
     "quat_rotate",
     "quat_from_rotvec",
@@ -160,8 +161,10 @@ def _to_rotvec_rows(q):
 
 
 @njit(cache=True)
-def _relative_rotvec_rows(a, b):
-    """Rotation vector of ``conj(a) ⊗ b`` per row: the arithmetic of conjugate, product and log in turn."""
+def relative_rotvec_rows(a, b):
+    """Rotation vector (n, 3), rad, angle in [0, π], of ``conj(a[k]) ⊗ b[k]`` for (n, 4) non-zero quaternions
+    ``a``, ``b`` (the body-frame rotation from attitude ``a`` to ``b``): conjugate, product, normalisation and log
+    in turn."""
     n = a.shape[0]
     out = np.empty((n, 3))
     for k in range(n):
@@ -350,7 +353,7 @@ def quat_relative_rotvec(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Rotation vector (..., 3), rad, of ``conj(q1) ⊗ q2`` (the body-frame rotation from attitude ``q1`` to ``q2``):
     ``quat_to_rotvec(quat_multiply(quat_conjugate(q1), q2))`` bit for bit, in one compiled pass."""
     a, b, shape = _pair_rows(q1, q2)
-    return _relative_rotvec_rows(a, b).reshape(shape[:-1] + (3,))
+    return relative_rotvec_rows(a, b).reshape(shape[:-1] + (3,))
 
 
 def quat_integrate(q, omega_body, dt, alpha_body=None) -> np.ndarray:

@@ -98,9 +98,12 @@ class CentroidErrorModel:
 
 
 # calibrate_error_model(SensorModel.preset(name), np.random.default_rng(2025), n_frames=16, method=method);
-# tests/test_centroid.py checks that they still reproduce the pixel path.
+# tests/test_centroid.py checks that they still reproduce the pixel path. paper000's centre of mass is fitted with
+# background_sigma_ratios=(1, 1, 6): the quiet sky counted twice, so the one closed form stays within the theory's
+# 10 % of the pixel path on a quiet sky (tests/test_preset_fidelity.py) and within its stated accuracy under stray
+# light (tests/test_fault_fidelity.py).
 DEFAULT_ERROR_MODELS = {
-    ("paper000", "com"): CentroidErrorModel(1.360, 1.123, 1.630, 0.001, 0.5, "com"),
+    ("paper000", "com"): CentroidErrorModel(1.385, 1.144, 1.700, 0.001, 0.5, "com"),
     ("paper000", "gaussian"): CentroidErrorModel(1.360, 3.307, 0.001, 1.426, 0.5, "gaussian"),
     ("paper000_cmos", "com"): CentroidErrorModel(1.345, 1.178, 1.366, 0.037, 0.5, "com"),
     ("paper000_cmos", "gaussian"): CentroidErrorModel(1.345, 13.915, 0.795, 0.205, 0.5, "gaussian"),

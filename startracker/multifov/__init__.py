@@ -11,7 +11,9 @@ the INS attitude narrowing the search. In import order:
   (:func:`propagate_attitude_error`, :func:`attitude_sigma_bound_rad`);
 * :mod:`~startracker.multifov.local_catalog`: the predicted observed scope of each head and its local star
   catalog (:func:`predict_scopes`, :class:`LocalCatalog`, eqs. 6-14);
-* :mod:`~startracker.multifov.matcher`: the inertial-aided cross-FoV matcher (:class:`InertialAidedMatcher`).
+* :mod:`~startracker.multifov.matcher`: the inertial-aided cross-FoV matcher (:class:`InertialAidedMatcher`);
+* :mod:`~startracker.multifov.tally`: scoring like paper 001, the method's successes apart from all-sky
+  fallbacks (:class:`MatchTally`, :func:`classify_identification`).
 
 The subsystem uses the mono-tracker rooms (optics, catalog, kvector, attitude, identify's result type);
 none of them imports it (tests/test_layering.py).
@@ -28,6 +30,7 @@ from startracker.multifov.heads import (
 from startracker.multifov.ins_error import attitude_sigma_bound_rad, propagate_attitude_error
 from startracker.multifov.local_catalog import LocalCatalog, ObservedScope, PairTable, los_bias_angles, predict_scopes
 from startracker.multifov.matcher import InertialAidedMatcher, MultiFovResult
+from startracker.multifov.tally import OUTCOMES, MatchTally, classify_identification
 
 __all__ = [
     "MultiFovSensor",
@@ -45,4 +48,7 @@ __all__ = [
     "los_bias_angles",
     "MultiFovResult",
     "InertialAidedMatcher",
+    "OUTCOMES",
+    "MatchTally",
+    "classify_identification",
 ]

@@ -426,30 +426,77 @@ class MultiFovSensor:
         rng: np.random.Generator | None = None,
         sigma_px: float = 0.0,
         mag_limit: float | None = None,
+        *,
+        mag_sigma: float = 0.0,
+        n_false: int = 0,
+        missing: int = 0,
     ) -> tuple[list, list]:
-        """Synthetic detections: the visible stars' pixel coordinates with Gaussian centroid noise.
+        """Synthetic detections: the visible stars' pixel coordinates with Gaussian centroid noise, and, as the
+        single head's identification frames have them (:func:`startracker.simulation.simulate_identification_frame`),
+        missing stars, false stars and magnitude noise, per head.
+
+        Per head, in this order: ``missing`` of its visible stars are removed at random; centroid noise of
+        ``sigma_px`` per axis; ``n_false`` false stars uniform over its detector, with magnitudes uniform over
+        the range of that head's true detections (V 3 to 6 when it has none); every magnitude gets Gaussian noise
+        of ``mag_sigma``; the list is sorted brightest first by *measured* magnitude (the order the matcher sees).
+        With all three at 0 no random number is drawn for them (the same frames as before they existed).
 
         Parameters
         ----------
         q_body_to_icrs : array_like, shape (4,)
         catalog : StarCatalog
         rng : numpy.random.Generator, optional
-            Required when ``sigma_px > 0``.
+            Required when any noise, false or missing star is asked for.
         sigma_px : float
             1σ centroid noise per axis, px.
         mag_limit : float, optional
+        mag_sigma : float
+            1σ magnitude noise (>= 0).
+        n_false : int
+            False stars per head (>= 0).
+        missing : int
+            Visible stars removed at random per head (>= 0; at most all of them).
 
         Returns
         -------
         xy_per_head : list of K ndarray, shape (n_k, 2)
-            Brightest first.
+            Brightest first (measured magnitude).
         star_index_per_head : list of K ndarray of int, shape (n_k,)
-            Catalog rows (truth).
+            Catalog rows (truth), -1 for a false star.
         """
         if not np.isfinite(sigma_px) or sigma_px < 0:
             raise ValueError(f"sigma_px must be >= 0, got {sigma_px}")
-        if sigma_px > 0 and not isinstance(rng, np.random.Generator):
-            raise TypeError("rng must be a numpy.random.Generator when sigma_px > 0")
+        if not np.isfinite(mag_sigma) or mag_sigma < 0:
+            raise ValueError(f"mag_sigma must be >= 0, got {mag_sigma}")
+        for name, val in (("n_false", n_false), ("missing", missing)):
+            if isinstance(val, bool) or int(val) != val or val < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {val!r}")
+        n_false, missing = int(n_false), int(missing)
+        noisy = sigma_px > 0 or mag_sigma > 0 or n_false > 0 or missing > 0
+        if noisy and not isinstance(rng, np.random.Generator):
+            raise TypeError("rng must be a numpy.random.Generator when noise, false or missing stars are asked for")
         v = self.view(q_body_to_icrs, catalog, mag_limit)
-        xy = [x + (rng.normal(0.0, sigma_px, x.shape) if sigma_px > 0 else 0.0) for x in v.xy]
-        return xy, [s.copy() for s in v.star_index]
+        xy_out, idx_out = [], []
+        for cam, x, idx in zip(self.heads, v.xy, v.star_index):
+            idx = idx.copy()
+            if missing > 0 and len(idx):
+                keep = np.ones(len(idx), dtype=bool)
+                keep[rng.choice(len(idx), size=min(missing, len(idx)), replace=False)] = False
+                x, idx = x[keep], idx[keep]
+            x = x + (rng.normal(0.0, sigma_px, x.shape) if sigma_px > 0 else 0.0)
+            mag = catalog.vmag[idx].astype(np.float64)
+            if n_false > 0:
+                w, h = cam.resolution
+                fxy = np.column_stack([rng.uniform(-0.5, w - 0.5, n_false), rng.uniform(-0.5, h - 0.5, n_false)])
+                lo, hi = (mag.min(), mag.max()) if len(mag) else (3.0, 6.0)
+                x = np.vstack([x, fxy])
+                mag = np.concatenate([mag, rng.uniform(lo, hi, n_false)])
+                idx = np.concatenate([idx, np.full(n_false, -1, dtype=idx.dtype)])
+            if mag_sigma > 0:
+                mag = mag + rng.normal(0.0, mag_sigma, len(mag))
+            if n_false > 0 or mag_sigma > 0:
+                order = np.argsort(mag, kind="stable")
+                x, idx = x[order], idx[order]
+            xy_out.append(x)
+            idx_out.append(idx)
+        return xy_out, idx_out

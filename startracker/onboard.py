@@ -673,7 +673,12 @@ class StarTrackerUnit:
             tf = t0 + f * cfg.frame_period_s
             # the gyro reading at the frame's start: the tracker propagates its prediction from frame_time
             k = min(int(round((tf - t0) / self.gyro_period_s)), len(omega_meas) - 1)
-            new = self.process_frame((times, quats), tf, rng, omega_gyro=omega_meas[k])
+            # and the last reading of the frame: the gyro's mean acceleration over it
+            k_end = min(int(round((tf + cfg.frame_period_s - t0) / self.gyro_period_s)) - 1, len(omega_meas) - 1)
+            alpha = None
+            if k_end > k:
+                alpha = (omega_meas[k_end] - omega_meas[k]) / ((k_end - k) * self.gyro_period_s)
+            new = self.process_frame((times, quats), tf, rng, omega_gyro=omega_meas[k], alpha_gyro=alpha)
             samples.extend(new)
             offsets.extend([self.last_time_error_s] * len(new))
             frame_ends.append((len(samples), tf + cfg.frame_period_s + 1e-3 * self._frame_latency_ms))
@@ -896,7 +901,8 @@ class StarTrackerUnit:
         return quat_integrate(q, omega, t_frame - t_s)
 
     # ------------------------------------------------------------------ one frame
-    def process_frame(self, truth, t_frame: float, rng: np.random.Generator, omega_gyro=None) -> list[AttitudeSample]:
+    def process_frame(self, truth, t_frame: float, rng: np.random.Generator, omega_gyro=None,
+                      alpha_gyro=None) -> list[AttitudeSample]:
         """Image, detect and process one frame on every head, from the truth history; the attitude samples.
 
         Parameters
@@ -908,6 +914,10 @@ class StarTrackerUnit:
         rng : numpy.random.Generator
         omega_gyro : ndarray, shape (3,), optional
             Gyro rate at the frame's start, rad/s (chooses N, seeds the tracker's prediction).
+        alpha_gyro : ndarray, shape (3,), optional
+            With ``omega_gyro``: the gyro's mean angular acceleration over the frame, rad/s² (the tracker processes
+            the frame after its readout, when the gyro has measured it; its prediction then follows a torque change
+            at the frame's start).
 
         Returns
         -------
@@ -952,11 +962,12 @@ class StarTrackerUnit:
             prior = self._inertial_prior(tracker, t_frame) if self.head_modes[k] != "track" else None
             t_proc = time.perf_counter()
             if faults or len(det) == 0 or det.xy.dtype != np.float64 or det.intensity.dtype != np.float64:
-                res = tracker.process_frame(det.xy, det.intensity, t_exp, t_frame, omega_body=omega_hint, q_body_prior=prior)
+                res = tracker.process_frame(det.xy, det.intensity, t_exp, t_frame, omega_body=omega_hint, q_body_prior=prior,
+                                            alpha_body=alpha_gyro)
             else:  # detections and times built here to process_frame's contract: skip its input checks
                 res = tracker.process_frame(
                     det.xy, det.intensity, t_exp, float(t_frame), omega_hint,
-                    None if prior is None else rk.quat_normalize(prior), validate=False)
+                    None if prior is None else rk.quat_normalize(prior), alpha_body=alpha_gyro, validate=False)
             # wall clock of the tracker's whole frame but lost-in-space identification: prediction and matching
             # (timed by the tracker), grouping by instant, the N Wahba solutions and the lock tests (the rest)
             tracker_ms = (time.perf_counter() - t_proc) * 1e3 - float(res.identify_latency_ms)

@@ -165,6 +165,9 @@ class TrackerSpec:
         Residual test of a match inside an instant (> 0).
     innovation_gate : float
         Lock test on the predicted-to-solved rotation, χ² with 3 dof (> 0).
+    instant_gate : float
+        Smoothness test of a frame's instants: leave-one-out χ² (3 dof) against a polynomial in time through the
+        other instants above which an instant is not reported (> 0; :class:`startracker.sensor.StarTracker`).
     shift_k_sigma : float
         Spots of one star stay ``2 shift_k_sigma`` prediction σ apart (>= 0).
     accel_sigma_rad_s2 : float
@@ -192,6 +195,7 @@ class TrackerSpec:
     max_residual_arcsec: float | None = None
     outlier_k_sigma: float = 5.0
     innovation_gate: float = 30.0
+    instant_gate: float = 16.0
     shift_k_sigma: float = 4.0
     accel_sigma_rad_s2: float = 0.02
     max_rate_deg_s: float = 30.0
@@ -211,6 +215,7 @@ class TrackerSpec:
             check_real(self.max_residual_arcsec, "max_residual_arcsec", 0.0, lo_open=True)
         check_real(self.outlier_k_sigma, "outlier_k_sigma", 0.0, lo_open=True)
         check_real(self.innovation_gate, "innovation_gate", 0.0, lo_open=True)
+        check_real(self.instant_gate, "instant_gate", 0.0, lo_open=True)
         check_real(self.shift_k_sigma, "shift_k_sigma", 0.0, 100.0)
         check_real(self.accel_sigma_rad_s2, "accel_sigma_rad_s2", 0.0)
         check_real(self.max_rate_deg_s, "max_rate_deg_s", 0.0, 360.0, lo_open=True)

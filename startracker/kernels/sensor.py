@@ -1,4 +1,5 @@
-"""Star-tracker bookkeeping kernels: the lock's innovation test and the consistency verdict, no checks.
+"""Star-tracker bookkeeping kernels: the lock's innovation test, the instants' smoothness test and the consistency
+verdict, no checks.
 
 The callers are :class:`startracker.sensor.StarTracker` (the innovation χ² of a tracked frame) and the verdicts of
 :mod:`startracker.onboard` (:func:`~startracker.onboard.judge_samples`, :func:`~startracker.onboard.judge_estimate`:
@@ -13,7 +14,7 @@ from numba import njit
 from startracker.kernels.algebra import mahalanobis3
 from startracker.kernels.rotations import relative_rotvec_rows
 
-__all__ = ["innovation_chi2_mean", "consistency_nis"]
+__all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2"]
 
 
 @njit(cache=True)
@@ -85,4 +86,70 @@ def consistency_nis(q_true, q_est, cov):
     out = np.empty(n)
     for k in range(n):
         out[k] = mahalanobis3(cov[k], d[k, 0], d[k, 1], d[k, 2])
+    return out
+
+
+@njit(cache=True)
+def instant_deleted_chi2(q_sol, cov_sol, tau_s, degree):
+    """Leave-one-out χ² of each instant's attitude against a polynomial in time through the other instants.
+
+    The rotation vectors ``θ_k`` of the instants relative to the middle one are fitted, axis by axis, by ordinary
+    least squares with a polynomial of ``degree`` in time. Instant k's deleted residual is ``d_k = r_k / (1 − h_k)``
+    (``r_k`` its residual, ``h_k`` its leverage): its attitude minus the fit through all the others at its time,
+    with covariance ``S_k = C_k + C̄ h_k / (1 − h_k)`` (``C̄`` the mean covariance of the other instants: the fit's
+    own error at ``τ_k``). The result ``d_kᵀ S_k⁻¹ d_k`` is χ²(3) when the motion is that polynomial over the frame
+    and the covariances tell the truth. An instant matched one exposure off sits on the trajectory at its
+    neighbour's time: its deleted residual is one exposure's rotation, hundreds of σ.
+
+    Parameters
+    ----------
+    q_sol : ndarray, shape (n, 4)
+        Solved attitudes of the instants (non-zero), n > degree + 1.
+    cov_sol : ndarray, shape (n, 3, 3)
+        Their covariances, body frame, rad².
+    tau_s : ndarray, shape (n,)
+        Their times, s (any origin), not all equal.
+    degree : int
+        Polynomial degree (>= 0).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The leave-one-out χ² of each instant (3 degrees of freedom).
+    """
+    n = q_sol.shape[0]
+    p = degree + 1
+    ref = np.empty((n, 4))
+    for k in range(n):
+        ref[k] = q_sol[n // 2]
+    theta = relative_rotvec_rows(ref, q_sol)
+    t0 = tau_s.mean()
+    span = max(tau_s.max() - tau_s.min(), 1e-12)
+    x = np.empty((n, p))
+    for k in range(n):
+        u = (tau_s[k] - t0) / span
+        v = 1.0
+        for j in range(p):
+            x[k, j] = v
+            v *= u
+    a_inv = np.linalg.inv(x.T @ x)
+    beta = a_inv @ (x.T @ theta)
+    resid = theta - x @ beta
+    c_sum = np.zeros((3, 3))
+    for k in range(n):
+        c_sum += cov_sol[k]
+    out = np.empty(n)
+    s = np.empty((3, 3))
+    for k in range(n):
+        h = 0.0
+        for i in range(p):
+            for j in range(p):
+                h += x[k, i] * a_inv[i, j] * x[k, j]
+        h = min(h, 1.0 - 1e-9)
+        g = h / (1.0 - h) / (n - 1)
+        for i in range(3):
+            for j in range(3):
+                s[i, j] = cov_sol[k, i, j] + (c_sum[i, j] - cov_sol[k, i, j]) * g
+        f = 1.0 / (1.0 - h)
+        out[k] = mahalanobis3(s, resid[k, 0] * f, resid[k, 1] * f, resid[k, 2] * f)
     return out

@@ -474,6 +474,10 @@ def unproject_to_body(xy, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, 
     return out
 
 
+ROBUST_MIN_STARS = 8
+"""Instants with at least this many stars also test outliers against their own robust residual scale."""
+
+
 @njit(cache=True)
 def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_vectors, n_instants, sigma_rad,
                    min_stars, outlier_threshold_rad):
@@ -482,7 +486,10 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
     Several observed points on one predicted point: the nearest keeps it (ties: the lowest observed index).
     Per instant, the stars in observed-index order are solved (:func:`~startracker.kernels.attitude.solve_wahba_one`,
     weights σ⁻²); while more than two remain and the largest residual exceeds the threshold, that star is dropped
-    and the instant solved again.
+    and the instant solved again. With at least :data:`ROBUST_MIN_STARS` stars the threshold is also at most 5 times
+    the instant's robust residual scale (median residual / 1.1774), not below 0.4 of ``outlier_threshold_rad``: spots
+    joined across two exposures (half a spacing off, all along the motion) pull the fit toward them together and
+    would otherwise stay under a threshold set by the claimed σ.
 
     Parameters
     ----------
@@ -570,6 +577,7 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
     ok = np.empty(n_instants, dtype=np.bool_)
     ang = np.empty(kmax)
     n_out = 0
+    used = np.empty(kmax)
     for i in range(n_instants):
         rms_i, ok_i = 0.0, False
         for _ in range(kmax):  # one outlier per pass
@@ -578,10 +586,19 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
             cnt = 0
             for s in range(kmax):
                 if m[i, s]:
+                    used[cnt] = ang[s]
                     cnt += 1
                 if ang[s] > ang[worst]:  # unused pairs hold -1
                     worst = s
-            if cnt > 2 and ang[worst] > outlier_threshold_rad:
+            threshold = outlier_threshold_rad
+            if cnt >= ROBUST_MIN_STARS:
+                # Several outliers pulling one way (spots joined across exposures, all displaced along the motion)
+                # drag the fit toward them and hide from a threshold on the claimed σ: also test against the
+                # instant's own robust scale (median residual norm / 1.1774 is σ for Gaussian errors), never below
+                # 0.4 of the threshold (2σ of the claimed σ at the default 5σ).
+                med = np.median(used[:cnt]) / 1.1774
+                threshold = min(threshold, max(5.0 * med, 0.4 * outlier_threshold_rad))
+            if cnt > 2 and ang[worst] > threshold:
                 m[i, worst] = False
                 n_out += 1
             else:

@@ -1,0 +1,101 @@
+"""The smoothness test of a tracked frame's instants: an instant matched one exposure off (its spots taken for the
+neighbouring exposure's, when the prediction lags by about half the spots' spacing at the end of a frame after a
+torque step) is not reported; the leave-one-out χ² kernel against a brute-force fit."""
+
+import numpy as np
+import pytest
+
+from startracker.catalog import load_catalog, select_navigation_stars
+from startracker.kernels.sensor import instant_deleted_chi2
+from startracker.optics import camera_preset
+from startracker.rotations import quat_conjugate, quat_from_rotvec, quat_integrate, quat_multiply, quat_random, quat_to_rotvec
+from startracker.sensor import StarTracker
+from startracker.simulation import simulate_tracking_frame
+
+FRAME_S = 0.1
+SIGMA_PX = 0.3
+VERDICT_CHI2 = 44.8  # χ²(3) at 1e-9: the verdict of docs/reliability.md
+
+
+@pytest.fixture(scope="module")
+def nav():
+    return select_navigation_stars(load_catalog(6.0), min_separation_rad=np.radians(0.1))
+
+
+@pytest.fixture(scope="module")
+def cam():
+    return camera_preset("paper000", q_cam_to_body=quat_from_rotvec([0.2, -0.1, 0.3]))
+
+
+def nees(sample, q_true):
+    e = quat_to_rotvec(quat_multiply(quat_conjugate(sample.q_body_to_icrs), q_true))
+    return float(e @ np.linalg.solve(sample.covariance_rad2, e))
+
+
+def shifted_instant_run(cam, nav, gate, shift_px, seed, n=21, rate_deg_s=19.0):
+    """Five frames at a constant rate with ``n`` exposures; in frames 3 and 4 every spot of the middle exposure is
+    displaced by ``shift_px`` along the motion (the coherent pull of spots joined across exposures, or part of an
+    exposure's spots taken for the neighbour's). Returns the samples of frames 3-4 over the verdict's χ² threshold,
+    and the number of samples at the shifted instant that were reported."""
+    rng = np.random.default_rng(seed)
+    q0 = quat_random(rng)
+    w0 = np.radians(rate_deg_s) * np.array([0.6, 0.8, 0.0])
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX, instant_gate=gate)
+    n_wrong = n_mid = 0
+    for k in range(5):
+        nk = st.requested_n_exposures if k < 3 else n
+        times = k * FRAME_S + (np.arange(nk) + 0.5) * FRAME_S / nk
+        fr = simulate_tracking_frame(cam, nav, q0, w0, times, rng, sigma_px=SIGMA_PX, p_detect=0.95)
+        xy = fr.xy.copy()
+        if k >= 3:
+            mid = fr.instant == nk // 2
+            # the image motion of the middle exposure's spots: their displacement to the next exposure's
+            step = np.array([np.median(np.diff(fr.xy_true[(fr.star_index == s) & (fr.instant >= 0)][np.argsort(
+                fr.instant[(fr.star_index == s) & (fr.instant >= 0)])], axis=0), axis=0)
+                for s in np.unique(fr.star_index[mid])]).mean(axis=0)
+            xy[mid] += shift_px * step / np.linalg.norm(step)
+        res = st.process_frame(xy, fr.intensity, times, k * FRAME_S, omega_body=w0)
+        if k >= 3:
+            n_wrong += sum(nees(s, quat_integrate(q0, w0, s.t_s)) > VERDICT_CHI2 for s in res.samples)
+            n_mid += sum(abs(s.t_s - times[nk // 2]) < 1e-9 for s in res.samples)
+    return n_wrong, n_mid
+
+
+def test_an_instant_off_the_smooth_motion_is_not_reported(cam, nav):
+    """One instant pulled along the motion by a fraction of the spots' spacing: with the smoothness test it is not
+    reported and no wrong sample leaves the tracker; without it (gate ∞) wrong samples do."""
+    on = [shifted_instant_run(cam, nav, 16.0, d, seed) for seed, d in enumerate((0.6, 0.9, 1.2, 1.6))]
+    off = [shifted_instant_run(cam, nav, np.inf, d, seed) for seed, d in enumerate((0.6, 0.9, 1.2, 1.6))]
+    assert sum(w for w, _ in on) == 0
+    assert sum(w for w, _ in off) > 0
+    # where the pulled instant left the tracker without the test, the test removed exactly it
+    assert all(m_on == 0 for (_, m_on), (w_off, _) in zip(on, off) if w_off)
+
+
+def test_instant_deleted_chi2_against_brute_force_leave_one_out():
+    rng = np.random.default_rng(4)
+    n = 9
+    tau = np.sort(rng.uniform(0.0, 0.1, n))
+    q_ref = quat_random(rng)
+    w, a = rng.normal(0, 0.2, 3), rng.normal(0, 0.5, 3)
+    theta = w * tau[:, None] + 0.5 * a * tau[:, None] ** 2
+    covs = np.array([np.diag(rng.uniform(1, 3, 3)) * 1e-10 for _ in range(n)])
+    theta += np.array([rng.multivariate_normal(np.zeros(3), c) for c in covs])
+    theta[4] += np.array([3e-4, 0.0, 0.0])  # one instant off its trajectory
+    q = quat_multiply(q_ref, quat_from_rotvec(theta))
+    got = instant_deleted_chi2(q, covs, tau, 2)
+    # brute force: fit the other instants (numpy.polyfit per axis, rotation vectors about the middle instant)
+    ref = q[n // 2]
+    th = quat_to_rotvec(quat_multiply(quat_conjugate(np.broadcast_to(ref, (n, 4))), q))
+    for k in range(n):
+        others = np.delete(np.arange(n), k)
+        pred = np.array([np.polyval(np.polyfit(tau[others], th[others, ax], 2), tau[k]) for ax in range(3)])
+        # the fit's own variance at tau_k with the others' mean covariance (equal weights)
+        x = np.vander(tau[others] - tau.mean(), 3)
+        xk = np.vander(np.array([tau[k] - tau.mean()]), 3)[0]
+        h = xk @ np.linalg.inv(x.T @ x) @ xk
+        s = covs[k] + covs[others].mean(axis=0) * h
+        d = th[k] - pred
+        assert got[k] == pytest.approx(d @ np.linalg.solve(s, d), rel=1e-6, abs=1e-6)
+    # the instant off its trajectory stands out (its neighbours' fits are pulled by it, less)
+    assert np.argmax(got) == 4 and got[4] > 100.0 and got[4] > 4.0 * np.sort(got)[-2]

@@ -156,7 +156,7 @@ def fused_frame(cam, cat, q_est, times, w_est, alpha, obs):
     sigma_rad = 1.0 / cam.focal_length_px
     return tk.track_frame(q_body, r_c2i, cand, cat.vectors, *camera_projection_model(cam), *cam.resolution, obs, 6.0,
                           False, cam.r_cam_to_body, sigma_rad, 3, 5.0 * sigma_rad, times, 0.0, EYE_COV, EYE_COV,
-                          EYE_COV)
+                          EYE_COV, np.zeros(len(obs)), np.zeros(0), 0.0)
 
 
 def main(argv=None):

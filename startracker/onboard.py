@@ -519,6 +519,7 @@ class StarTrackerUnit:
                         centroid_sigma_px=spec.centroid_sigma_px(), frame_period_s=spec.frame_period_s,
                         max_exposures=spec.exposure.max_exposures, gyro_sigma_rad_s=gyro_sigma,
                         rate_per_exposure_deg_s=spec.exposure.rate_per_exposure_deg_s,
+                        star_flux=h.sensor_model.star_pe(cat.vmag, cat.bv, 1.0),
                         **spec.tracker.tracker_kwargs())
             for h, spec, cat in zip(self.heads, config.heads, self.catalogs)
         ]

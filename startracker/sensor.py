@@ -77,6 +77,9 @@ __all__ = ["StarTracker", "FrameResult", "AttitudeSample", "MotionState", "MODES
 
 MODES = ("lost", "acquire", "track")
 
+_NO_FLUX = np.zeros(0)
+_NO_FLUX.setflags(write=False)
+
 
 def _frozen(a: np.ndarray) -> np.ndarray:
     """``a`` made read-only (a constant shared by motion states)."""
@@ -253,6 +256,14 @@ class StarTracker:
         exposures); more than a third such and the frame is refused. 16 is exceeded with probability 1e-3 by an
         instant that is right (a sample lost, 0.1 % of the rate), and lies well under the verdict's 44.8 on the
         instant's own covariance (the leave-one-out covariance adds the fit's); ``inf`` disables the test.
+    star_flux : array_like, shape (C,), optional
+        Expected signal of each catalog star in one exposure (relative; e.g. the detector's
+        ``SensorModel.star_pe(vmag, bv, 1.0)``). Given, a match whose intensity over its star's expected signal exceeds
+        ``blend_flux_ratio`` times the frame's median of that ratio is not used: it holds more than one exposure's
+        light (spots joined across exposures: their centroid lies between the exposures and would pull the instant
+        along the motion). Needs the detections' ``intensity``.
+    blend_flux_ratio : float
+        Threshold of that photometric blend test (> 1): a join of two equal exposures carries 2.
     shift_k_sigma : float
         Exposure plan: N is also limited so that the spots of one star stay ``2 shift_k_sigma`` prediction
         σ apart, keeping that one-exposure-off match improbable.
@@ -292,6 +303,8 @@ class StarTracker:
         outlier_k_sigma: float = 5.0,
         innovation_gate: float = 30.0,
         instant_gate: float = 16.0,
+        star_flux=None,
+        blend_flux_ratio: float = 1.7,
         shift_k_sigma: float = 4.0,
         accel_sigma_rad_s2: float = 0.02,
         recovery_accel_sigma_rad_s2: float = 0.2,
@@ -338,6 +351,17 @@ class StarTracker:
         self.outlier_k_sigma = check_positive(outlier_k_sigma, "outlier_k_sigma")
         self.innovation_gate = check_positive(innovation_gate, "innovation_gate")
         self.instant_gate = math.inf if instant_gate == math.inf else check_positive(instant_gate, "instant_gate")
+        if star_flux is None:
+            self._star_flux = np.zeros(0)
+        else:
+            self._star_flux = np.ascontiguousarray(as_float_array(star_flux, "star_flux", ndim=1))
+            if len(self._star_flux) != len(catalog.vmag) or np.any(self._star_flux <= 0):
+                raise ValueError(f"star_flux must hold one positive value per catalog star ({len(catalog.vmag)})")
+        self.blend_flux_ratio = check_positive(blend_flux_ratio, "blend_flux_ratio")
+        if self.blend_flux_ratio <= 1.0:
+            raise ValueError(f"blend_flux_ratio must be > 1, got {blend_flux_ratio}")
+        self._intensity = np.zeros(0)  # this frame's detection intensities (the photometric blend test)
+        self._flux = _NO_FLUX
         self.shift_k_sigma = check_positive(shift_k_sigma, "shift_k_sigma", allow_zero=True)
         self.accel_sigma_rad_s2 = check_positive(accel_sigma_rad_s2, "accel_sigma_rad_s2", allow_zero=True)
         self.recovery_accel_sigma_rad_s2 = check_positive(recovery_accel_sigma_rad_s2, "recovery_accel_sigma_rad_s2", allow_zero=True)
@@ -488,6 +512,10 @@ class StarTracker:
 
     def _run_frame(self, xy, intensity, t_exp, t_frame, gyro, prior) -> FrameResult:
         """The work of :meth:`process_frame` on checked inputs."""
+        if len(self._star_flux) and intensity is not None and len(intensity) == len(xy):
+            self._intensity, self._flux = np.ascontiguousarray(intensity, dtype=np.float64), self._star_flux
+        else:  # no photometric blend test without intensities
+            self._intensity, self._flux = np.zeros(len(xy)), _NO_FLUX
         if self._last_frame_time is not None and t_frame <= self._last_frame_time:
             self.reset()  # time went backwards: a new run, nothing of the old one is valid
         dt_frame = self.frame_period_s if self._last_frame_time is None else t_frame - self._last_frame_time
@@ -658,7 +686,7 @@ class StarTracker:
             n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = track_kernels.track_frame(
                 q_pred, r_c2i, cand, self.catalog.vectors, *self._frame_model, xy, float(r), self.matcher == "brute",
                 self._r_cam_to_body, self.sigma_rad, self.min_stars_per_instant, self.outlier_k_sigma * self.sigma_rad,
-                t_exp, t_ref, st.cov_theta_rad2, cov_w, cov_a)
+                t_exp, t_ref, st.cov_theta_rad2, cov_w, cov_a, self._intensity, self._flux, self.blend_flux_ratio)
         else:
             n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = self._track_stages(
                 xy, t_exp, q0, t_ref, omega, alpha, float(r), st.cov_theta_rad2, cov_w, cov_a)

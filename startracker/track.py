@@ -640,5 +640,6 @@ def _solve_instants(obs, idx, prediction, camera, catalog, sigma_px, min_stars, 
     sigma_rad = sigma_px / camera.focal_length_px
     q, cov, rms, n_used, ok, assign, n_out = track_kernels.solve_instants(
         obs, v_body, idx, prediction.xy, prediction.instant, prediction.star_index, catalog.vectors,
-        len(prediction.times_s), float(sigma_rad), int(min_stars), float(outlier_k_sigma * sigma_rad))
+        len(prediction.times_s), float(sigma_rad), int(min_stars), float(outlier_k_sigma * sigma_rad),
+        np.zeros(len(obs)), np.zeros(0), 0.0)
     return InstantAttitudes(prediction.times_s.copy(), q, cov, rms, n_used, ok, assign, int(n_out))

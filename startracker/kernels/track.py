@@ -480,7 +480,7 @@ ROBUST_MIN_STARS = 8
 
 @njit(cache=True)
 def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_vectors, n_instants, sigma_rad,
-                   min_stars, outlier_threshold_rad):
+                   min_stars, outlier_threshold_rad, obs_intensity, star_flux, flux_ratio_max):
     """Unique assignment, grouping by exposure instant and one Wahba solution per instant with outlier rejection.
 
     Several observed points on one predicted point: the nearest keeps it (ties: the lowest observed index).
@@ -512,6 +512,16 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
         Instants with fewer stars are not ``ok``.
     outlier_threshold_rad : float
         Residual above which a star is an outlier.
+    obs_intensity : ndarray, shape (K,)
+        Intensity of each detection (any unit); unused when ``star_flux`` is empty.
+    star_flux : ndarray, shape (C,) or (0,)
+        Expected single-exposure signal of each catalog star (relative, e.g. ``SensorModel.star_pe`` per second);
+        empty: no photometric test.
+    flux_ratio_max : float
+        Photometric blend test: with :data:`ROBUST_MIN_STARS` or more matches, a detection whose intensity over its
+        star's expected signal exceeds this times the median of that ratio over the frame's matches is not used:
+        it holds the light of more than one exposure (spots joined across exposures, whose centroid lies between
+        them).
 
     Returns
     -------
@@ -540,9 +550,22 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 best_q[p] = q
                 best_d[p] = d2
     assign = np.full(k_n, -1, dtype=np.int64)
+    n_assigned = 0
     for p in range(w_n):
         if best_q[p] >= 0:
             assign[best_q[p]] = p
+            n_assigned += 1
+    if star_flux.shape[0] and n_assigned >= ROBUST_MIN_STARS:
+        ratio = np.empty(n_assigned)
+        j = 0
+        for q in range(k_n):
+            if assign[q] >= 0:
+                ratio[j] = obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300)
+                j += 1
+        cap = flux_ratio_max * np.median(ratio)
+        for q in range(k_n):
+            if assign[q] >= 0 and obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300) > cap:
+                assign[q] = -1
     counts = np.zeros(n_instants, dtype=np.int64)
     for q in range(k_n):
         if assign[q] >= 0:
@@ -621,7 +644,8 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
 @njit(cache=True)
 def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy,
                 cos_rot, sin_rot, width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad, min_stars,
-                outlier_threshold_rad, t_exp, t_ref, cov_theta, cov_omega, cov_alpha):
+                outlier_threshold_rad, t_exp, t_ref, cov_theta, cov_omega, cov_alpha, obs_intensity, star_flux,
+                flux_ratio_max):
     """One tracking frame after the prediction's attitudes: projection, matching, N Wahba solutions, innovation.
 
     :func:`project_frame` of the candidate stars (margin = the radius), :func:`dkvlut_build_match` (or
@@ -657,6 +681,8 @@ def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k
         Time of the motion state the prediction starts from, s.
     cov_theta, cov_omega, cov_alpha : ndarray, shape (3, 3)
         The prediction's covariances, as :func:`~startracker.kernels.sensor.innovation_chi2_mean`.
+    obs_intensity, star_flux, flux_ratio_max
+        The photometric blend test, as :func:`solve_instants` (``star_flux`` empty: none).
 
     Returns
     -------
@@ -691,7 +717,8 @@ def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k
     v_body = unproject_to_body(obs, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot,
                                r_cam_to_body)
     q, cov, rms, n_used, ok, assign, _ = solve_instants(obs, v_body, idx, xy, inst, star, catalog_vectors, n_inst,
-                                                        sigma_rad, min_stars, outlier_threshold_rad)
+                                                        sigma_rad, min_stars, outlier_threshold_rad, obs_intensity,
+                                                        star_flux, flux_ratio_max)
     n_matched = 0
     for j in range(k_n):
         if assign[j] >= 0:

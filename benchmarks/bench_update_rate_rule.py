@@ -9,7 +9,8 @@ A 150° eigenaxis slew about body x (cross-boresight: stars stream across the de
 * ``paper000``: paper 000's rule, N = 1 + round(|ω| / 1°/s), 21 at 20°/s (210 Hz).
 
 Reports, per rule, the exposures per frame and the update rate (distinct attitude instants per second) while
-coasting at 20°/s or more, and the fused attitude error (EKF against truth) over the same steps and over the slew.
+coasting at 20°/s or more, and the fused attitude error (EKF against truth) over the same steps and over the slew
+(steps in track with a valid estimate: before the first fix reaches the filter the estimate claims nothing).
 
     python benchmarks/bench_update_rate_rule.py [--seeds N] [--fidelity pixel]
 """
@@ -50,7 +51,8 @@ def run(seed, rule, fidelity="centroid", angle_deg=150.0):
         d = quat_to_rotvec(quat_multiply(quat_conjugate(info["q_est"]), info["q_true"]))
         rows.append((np.degrees(np.linalg.norm(info["omega_true_body"])), info["update_rate_hz"],
                      info["exposures_per_frame"], np.hypot(d[0], d[1]) * ARCSEC, abs(d[2]) * ARCSEC,
-                     info["tracker_mode"] == "track", info["lost_lock_events"], info["n_wrong_samples_total"]))
+                     info["tracker_mode"] == "track" and info["estimate_valid"], info["lost_lock_events"],
+                     info["n_wrong_samples_total"]))
         done = te or tr
     env.close()
     a = np.array(rows, dtype=float)

@@ -304,7 +304,7 @@ class StarTracker:
         innovation_gate: float = 30.0,
         instant_gate: float = 16.0,
         star_flux=None,
-        blend_flux_ratio: float = 1.7,
+        blend_flux_ratio: float = 1.5,
         shift_k_sigma: float = 4.0,
         accel_sigma_rad_s2: float = 0.02,
         recovery_accel_sigma_rad_s2: float = 0.2,
@@ -681,6 +681,7 @@ class StarTracker:
             # prediction's attitudes and cone search, then projection, matching, N Wahba and innovation compiled
             q_pred, r_c2i, mid, spread = track_kernels.propagate_attitudes(q0, omega, alpha, t_exp - t_ref,
                                                                            self._q_cam_to_body)
+            q_pred_all = q_pred
             cone = min(math.pi, self._half_diag_fov_rad + spread + r / self._f_px + 0.02)
             cand = self.catalog.cone_search(mid, cone, validate=False)
             n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = track_kernels.track_frame(
@@ -688,6 +689,7 @@ class StarTracker:
                 self._r_cam_to_body, self.sigma_rad, self.min_stars_per_instant, self.outlier_k_sigma * self.sigma_rad,
                 t_exp, t_ref, st.cov_theta_rad2, cov_w, cov_a, self._intensity, self._flux, self.blend_flux_ratio)
         else:
+            q_pred_all = track_kernels.propagate_attitudes(q0, omega, alpha, t_exp - t_ref, self._q_cam_to_body)[0]
             n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = self._track_stages(
                 xy, t_exp, q0, t_ref, omega, alpha, float(r), st.cov_theta_rad2, cov_w, cov_a)
         latency = (time.perf_counter() - t0) * 1e3
@@ -729,7 +731,7 @@ class StarTracker:
         # Smoothness: an instant matched one exposure off (its spots taken for the neighbour's) sits on the trajectory
         # at the wrong time. Neither the residual nor the mean innovation over many instants sees one such instant;
         # its attitude against a polynomial through the other instants does.
-        keep = self._smooth_instants(t_s, q_sol, cov_sol)
+        keep = self._smooth_instants(t_s, q_pred_all[sel], q_sol, cov_sol)
         if keep is not None:
             n_off = n_ok - len(keep)
             if 3 * n_off > n_ok:
@@ -748,10 +750,11 @@ class StarTracker:
             status += f", skipped instants {list(skipped)}"
         return _Attempt(True, status, samples, state=new_state, **base)
 
-    def _smooth_instants(self, t_s, q_sol, cov_sol):
+    def _smooth_instants(self, t_s, q_pred, q_sol, cov_sol):
         """Indices of the solved instants that lie on a smooth motion, or None when all do (or there are too few
-        to tell: fewer than 3). The instant with the largest leave-one-out χ² against a polynomial in time
-        through the others (:func:`startracker.kernels.sensor.instant_deleted_chi2`: quadratic from 6 instants,
+        to tell: fewer than 3). The rotations from the predicted to the solved attitudes (the prediction's error:
+        smooth in time, whatever the motion) are fitted; the instant with the largest leave-one-out χ² against a
+        polynomial in time through the others (:func:`startracker.kernels.sensor.instant_deleted_chi2`: quadratic from 6 instants,
         a line from 4) is removed while it exceeds ``instant_gate``; three instants that fail a line keep none."""
         n = len(t_s)
         if n < 3 or self.instant_gate == math.inf:
@@ -759,12 +762,12 @@ class StarTracker:
         if n == 3:
             # a line through two instants checks the third: one degree of freedom, the same χ² for all three, so an
             # inconsistency cannot be placed: none of them is reported
-            chi2 = sensor_kernels.instant_deleted_chi2(q_sol, cov_sol, t_s, 1)
+            chi2 = sensor_kernels.instant_deleted_chi2(q_pred, q_sol, cov_sol, t_s, 1)
             return None if not chi2[0] > self.instant_gate else np.zeros(0, dtype=np.int64)
         idx = np.arange(n)
         while len(idx) >= 4:
             degree = 2 if len(idx) >= 6 else 1
-            chi2 = sensor_kernels.instant_deleted_chi2(q_sol[idx], cov_sol[idx], t_s[idx], degree)
+            chi2 = sensor_kernels.instant_deleted_chi2(q_pred[idx], q_sol[idx], cov_sol[idx], t_s[idx], degree)
             worst = int(np.argmax(chi2))
             if not chi2[worst] > self.instant_gate:
                 break

@@ -83,7 +83,7 @@ def test_instant_deleted_chi2_against_brute_force_leave_one_out():
     theta += np.array([rng.multivariate_normal(np.zeros(3), c) for c in covs])
     theta[4] += np.array([3e-4, 0.0, 0.0])  # one instant off its trajectory
     q = quat_multiply(q_ref, quat_from_rotvec(theta))
-    got = instant_deleted_chi2(q, covs, tau, 2)
+    got = instant_deleted_chi2(np.broadcast_to(q[n // 2], (n, 4)).copy(), q, covs, tau, 2)
     # brute force: fit the other instants (numpy.polyfit per axis, rotation vectors about the middle instant)
     ref = q[n // 2]
     th = quat_to_rotvec(quat_multiply(quat_conjugate(np.broadcast_to(ref, (n, 4))), q))
@@ -99,3 +99,52 @@ def test_instant_deleted_chi2_against_brute_force_leave_one_out():
         assert got[k] == pytest.approx(d @ np.linalg.solve(s, d), rel=1e-6, abs=1e-6)
     # the instant off its trajectory stands out (its neighbours' fits are pulled by it, less)
     assert np.argmax(got) == 4 and got[4] > 100.0 and got[4] > 4.0 * np.sort(got)[-2]
+
+
+def blended_run(cam, nav, star_flux, seed, n=21, rate_deg_s=19.0, sigma_px=0.5):
+    """Five frames at a constant rate; in frames 3 and 4 a third of the stars have the spots of exposures 9-12 joined
+    into one blob (light 1, 1, 1, 0.3: its centroid 0.18 of a spacing past exposure 10's spot, intensity 3.3 times one
+    exposure's), as a bright star's near-overlapping spots are. The smoothness test is off, to see the photometric
+    test alone. Returns the samples of frames 3-4 over the verdict's χ² threshold."""
+    rng = np.random.default_rng(seed)
+    q0 = quat_random(rng)
+    w0 = np.radians(rate_deg_s) * np.array([0.6, 0.8, 0.0])
+    st = StarTracker(cam, nav, centroid_sigma_px=sigma_px, instant_gate=np.inf, star_flux=star_flux)
+    n_wrong = 0
+    for k in range(5):
+        nk = st.requested_n_exposures if k < 3 else n
+        times = k * FRAME_S + (np.arange(nk) + 0.5) * FRAME_S / nk
+        fr = simulate_tracking_frame(cam, nav, q0, w0, times, rng, sigma_px=SIGMA_PX, p_detect=1.0)
+        xy, inten = fr.xy.copy(), fr.intensity.copy()
+        if k >= 3:
+            keep = np.ones(len(xy), dtype=bool)
+            blobs, blob_i = [], []
+            for s in np.unique(fr.star_index[fr.star_index >= 0])[::3]:
+                rows = [np.flatnonzero((fr.star_index == s) & (fr.instant == e)) for e in (9, 10, 11, 12)]
+                if any(len(r) != 1 for r in rows):
+                    continue
+                rows = [r[0] for r in rows]
+                wgt = np.array([1.0, 1.0, 1.0, 0.3])
+                blobs.append((wgt[:, None] * fr.xy_true[rows]).sum(axis=0) / wgt.sum() + rng.normal(0, SIGMA_PX, 2))
+                blob_i.append((wgt * fr.intensity[rows]).sum())
+                keep[rows] = False
+            xy = np.vstack([xy[keep], blobs])
+            inten = np.concatenate([inten[keep], blob_i])
+        res = st.process_frame(xy, inten, times, k * FRAME_S, omega_body=w0)
+        if k >= 3:
+            n_wrong += sum(nees(s, quat_integrate(q0, w0, s.t_s)) > VERDICT_CHI2 for s in res.samples)
+    return n_wrong
+
+
+def test_spots_joined_across_exposures_are_not_used(cam, nav):
+    """Blobs of a star's joined exposures sit inside the outlier threshold and pull their instant along the motion;
+    the photometric blend test (each star's expected signal, the frame's own flux scale) leaves them out."""
+    flux = 10.0 ** (-0.4 * nav.vmag)
+    with_test = sum(blended_run(cam, nav, flux, seed) for seed in range(3))
+    without = sum(blended_run(cam, nav, None, seed) for seed in range(3))
+    assert with_test == 0
+    assert without > 0
+    with pytest.raises(ValueError, match="star_flux"):
+        StarTracker(cam, nav, star_flux=np.ones(3))
+    with pytest.raises(ValueError, match="blend_flux_ratio"):
+        StarTracker(cam, nav, star_flux=flux, blend_flux_ratio=1.0)

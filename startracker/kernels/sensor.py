@@ -90,10 +90,12 @@ def consistency_nis(q_true, q_est, cov):
 
 
 @njit(cache=True)
-def instant_deleted_chi2(q_sol, cov_sol, tau_s, degree):
+def instant_deleted_chi2(q_ref, q_sol, cov_sol, tau_s, degree):
     """Leave-one-out χ² of each instant's attitude against a polynomial in time through the other instants.
 
-    The rotation vectors ``θ_k`` of the instants relative to the middle one are fitted, axis by axis, by ordinary
+    The rotation vectors ``θ_k`` of the instants relative to their references ``q_ref`` (the predicted attitudes:
+    then ``θ`` is the prediction's error, a low-order polynomial in time whatever the motion; or one attitude for all)
+    are fitted, axis by axis, by ordinary
     least squares with a polynomial of ``degree`` in time. Instant k's deleted residual is ``d_k = r_k / (1 − h_k)``
     (``r_k`` its residual, ``h_k`` its leverage): its attitude minus the fit through all the others at its time,
     with covariance ``S_k = C_k + C̄ h_k / (1 − h_k)`` (``C̄`` the mean covariance of the other instants: the fit's
@@ -103,6 +105,8 @@ def instant_deleted_chi2(q_sol, cov_sol, tau_s, degree):
 
     Parameters
     ----------
+    q_ref : ndarray, shape (n, 4)
+        Reference attitude of each instant (non-zero).
     q_sol : ndarray, shape (n, 4)
         Solved attitudes of the instants (non-zero), n > degree + 1.
     cov_sol : ndarray, shape (n, 3, 3)
@@ -119,10 +123,7 @@ def instant_deleted_chi2(q_sol, cov_sol, tau_s, degree):
     """
     n = q_sol.shape[0]
     p = degree + 1
-    ref = np.empty((n, 4))
-    for k in range(n):
-        ref[k] = q_sol[n // 2]
-    theta = relative_rotvec_rows(ref, q_sol)
+    theta = relative_rotvec_rows(q_ref, q_sol)
     t0 = tau_s.mean()
     span = max(tau_s.max() - tau_s.min(), 1e-12)
     x = np.empty((n, p))

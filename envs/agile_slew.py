@@ -123,6 +123,9 @@ class AgileSlewEnv(gym.Env):
     ## Version History
 
     * v0: first release.
+    * v0, sensor revision (task unchanged: observation, action, reward, episode ends, info keys): the paper000
+      camera takes paper 000's N rule (21 exposures, 210 Hz at 20°/s); near-overlapping spots join in both
+      fidelities; the tracker drops joined spots and instants off a smooth motion (docs/environment.md).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}

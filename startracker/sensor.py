@@ -259,7 +259,7 @@ class StarTracker:
     star_flux : array_like, shape (C,), optional
         Expected signal of each catalog star in one exposure (relative; e.g. the detector's
         ``SensorModel.star_pe(vmag, bv, 1.0)``). Given, a match whose intensity over its star's expected signal exceeds
-        ``blend_flux_ratio`` times the frame's median of that ratio is not used: it holds more than one exposure's
+        ``blend_flux_ratio`` times the frame's lower quartile of that ratio is not used: it holds more than one exposure's
         light (spots joined across exposures: their centroid lies between the exposures and would pull the instant
         along the motion). Needs the detections' ``intensity``.
     blend_flux_ratio : float
@@ -304,7 +304,7 @@ class StarTracker:
         innovation_gate: float = 30.0,
         instant_gate: float = 16.0,
         star_flux=None,
-        blend_flux_ratio: float = 1.5,
+        blend_flux_ratio: float = 1.6,
         shift_k_sigma: float = 4.0,
         accel_sigma_rad_s2: float = 0.02,
         recovery_accel_sigma_rad_s2: float = 0.2,

@@ -519,7 +519,8 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
         empty: no photometric test.
     flux_ratio_max : float
         Photometric blend test: with :data:`ROBUST_MIN_STARS` or more matches, a detection whose intensity over its
-        star's expected signal exceeds this times the median of that ratio over the frame's matches is not used:
+        star's expected signal exceeds this times the lower quartile of that ratio over the frame's matches (one
+        exposure's light, as long as a quarter of the matches are single spots) is not used:
         it holds the light of more than one exposure (spots joined across exposures, whose centroid lies between
         them).
 
@@ -562,7 +563,8 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
             if assign[q] >= 0:
                 ratio[j] = obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300)
                 j += 1
-        cap = flux_ratio_max * np.median(ratio)
+        # the scale of one exposure's light: the lower quartile (at low rates joined spots can be most matches)
+        cap = flux_ratio_max * np.sort(ratio)[n_assigned // 4]
         for q in range(k_n):
             if assign[q] >= 0 and obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300) > cap:
                 assign[q] = -1

@@ -148,3 +148,45 @@ def test_spots_joined_across_exposures_are_not_used(cam, nav):
         StarTracker(cam, nav, star_flux=np.ones(3))
     with pytest.raises(ValueError, match="blend_flux_ratio"):
         StarTracker(cam, nav, star_flux=flux, blend_flux_ratio=1.0)
+
+
+def torque_step_modes(cam, nav, use_alpha, d_alpha=0.6, seed=5, n=10, rate_deg_s=9.0):
+    """Six frames at a constant rate with a gyro, then the angular acceleration steps by ``d_alpha`` (rad/s²) at the
+    start of frame 6. The gyro rate at each frame's start is given; ``use_alpha``: also the gyro's mean acceleration
+    over the frame. Returns the modes after frames 6-8 and the largest NEES of their samples."""
+    rng = np.random.default_rng(seed)
+    q0 = quat_random(rng)
+    axis = np.array([0.6, 0.8, 0.0])
+    w0 = np.radians(rate_deg_s) * axis
+    t1 = 6 * FRAME_S
+    q1 = quat_integrate(q0, w0, t1)
+    a1 = d_alpha * axis
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX, gyro_sigma_rad_s=1e-5)
+    modes, worst = [], 0.0
+    for k in range(9):
+        nk = st.requested_n_exposures if k < 6 else n
+        times = k * FRAME_S + (np.arange(nk) + 0.5) * FRAME_S / nk
+        if k < 6:
+            fr = simulate_tracking_frame(cam, nav, q0, w0, times, rng, sigma_px=SIGMA_PX, p_detect=0.95)
+            w_start, alpha = w0, np.zeros(3)
+        else:
+            fr = simulate_tracking_frame(cam, nav, q1, w0, times, rng, t_ref_s=t1, alpha_body=a1, sigma_px=SIGMA_PX,
+                                         p_detect=0.95)
+            w_start, alpha = w0 + a1 * (k * FRAME_S - t1), a1
+        res = st.process_frame(fr.xy, fr.intensity, times, k * FRAME_S, omega_body=w_start,
+                               alpha_body=alpha if use_alpha else None)
+        if k >= 6:
+            modes.append(res.mode)
+            for s in res.samples:
+                q_true = quat_integrate(q0, w0, s.t_s) if s.t_s <= t1 else quat_integrate(q1, w0, s.t_s - t1, a1)
+                worst = max(worst, nees(s, q_true))
+    return modes, worst
+
+
+def test_gyro_acceleration_over_the_frame_follows_a_torque_step(cam, nav):
+    """A torque step at a frame's start: the acceleration of the previous frames is stale, and the prediction lags
+    several spot spacings by the frame's end (lock lost); with the gyro's acceleration over the frame it does not."""
+    modes_on, worst_on = torque_step_modes(cam, nav, True)
+    modes_off, _ = torque_step_modes(cam, nav, False)
+    assert modes_on == ["track", "track", "track"] and worst_on < VERDICT_CHI2
+    assert modes_off[0] == "lost"

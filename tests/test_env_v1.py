@@ -132,6 +132,29 @@ def test_body_torque_action_accelerates_the_bus_as_J_inverse_tau():
     assert np.allclose(dw, expected, rtol=1e-3, atol=1e-7)
 
 
+def test_cubic_action_curve_commands_the_cube_and_keeps_full_authority():
+    """``action_curve="cubic"``: the bus accelerates as J_eff⁻¹ (a³ τ_max), so a = 0.3 gives 2.7 % of the torque
+    limit, and a = ±1 still the full limit; the default stays linear."""
+    a = np.array([0.3, -0.2, 1.0], np.float32)
+    rates = {}
+    for curve in ("linear", "cubic"):
+        env = gym.make(V1, sensor="ideal", action_curve=curve)
+        env.reset(seed=0)
+        env.step(a)
+        sc = env.unwrapped.spacecraft
+        axes = sc.wheel_axes_body
+        j_eff = sc.inertia_kg_m2 - sc.wheel_inertia_kg_m2 * axes.T @ axes
+        cmd = a.astype(np.float64) ** (3 if curve == "cubic" else 1)
+        # the allocator scales a torque that saturates a wheel down with its direction kept
+        peak = np.max(np.abs(np.linalg.pinv(axes.T) @ (cmd * 0.5)))
+        expected = np.linalg.solve(j_eff, cmd * 0.5 * min(1.0, 0.95 * 0.5 / peak)) * 0.1
+        assert np.allclose(sc.omega_body, expected, rtol=1e-3, atol=1e-8)
+        rates[curve] = sc.omega_body.copy()
+        env.close()
+    assert not np.allclose(rates["linear"], rates["cubic"])
+    assert gym.make(V1).unwrapped.action_curve == "linear"
+
+
 def test_null_space_momentum_decays_and_makes_no_body_motion():
     """Management on: the internal momentum bleeds off; management off (an allocator of time constant ∞) it stays."""
     env = gym.make(V1, sensor="ideal")
@@ -211,6 +234,8 @@ def test_bad_arguments_are_named():
         gym.make(V1, action_mode="torque")
     with pytest.raises(ValueError, match="sensor"):
         gym.make(V1, sensor="perfect")
+    with pytest.raises(ValueError, match="action_curve"):
+        gym.make(V1, action_curve="quadratic")
     with pytest.raises(ValueError, match="max_episode_s"):
         gym.make(V1, max_episode_s="long")
     env = gym.make(V1, sensor="ideal")

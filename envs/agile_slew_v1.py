@@ -23,7 +23,8 @@ ACTION_MODES = ("body_torque", "wheel")
 ACTION_CURVES = ("linear", "cubic")
 SENSORS = ("tracker", "ideal")
 ARCSEC = math.pi / (180.0 * 3600.0)
-# scales of the observation's near-target entries: tanh(x / scale) resolves the settle window
+# scales of the observation's near-target entries: tanh(x / scale) resolves the settle window (the angle's scale is
+# the default of ``fine_error_deg``)
 FINE_ANGLE_RAD = math.radians(1.0)
 FINE_RATE_RAD_S = math.radians(0.2)
 # log-scaled attitude σ: 0.2″ maps to -1, π (lost) to +1
@@ -150,7 +151,7 @@ class AgileSlewV1Env(AgileSlewEnv):
     | Num     | Observation                                              | Min | Max | Unit |
     |---------|----------------------------------------------------------|-----|-----|------|
     | 0-2     | attitude error rotation vector / π (body)                | -1  | 1   | -    |
-    | 3-5     | tanh(attitude error rotation vector / 1°)                | -1  | 1   | -    |
+    | 3-5     | tanh(attitude error rotation vector / ``fine_error_deg``) | -1  | 1   | -    |
     | 6-8     | body rate / ``max_rate_deg_s``, clipped                  | -f  | f   | -    |
     | 9-11    | tanh(body rate / 0.2°/s)                                 | -1  | 1   | -    |
     | 12-15   | wheel momentum / capacity                                | -1  | 1   | -    |
@@ -158,7 +159,8 @@ class AgileSlewV1Env(AgileSlewEnv):
     | 19      | attitude 1σ, log scale: 2·log(σ/1e-6 rad)/log(π/1e-6) − 1 | -1  | 1   | -    |
     | 20      | settle timer / ``settle_hold_s``                         | 0   | 1   | -    |
 
-    ``f`` is ``diverge_rate_factor`` (rates beyond it end the episode). ``observation_layout`` names the slices.
+    ``f`` is ``diverge_rate_factor`` (rates beyond it end the episode). ``fine_error_deg`` is 1° by default; at
+    0.2° the settle tolerance (0.05°) reads 0.245 in entries 3-5, as the rate tolerance does in entries 9-11. ``observation_layout`` names the slices.
 
     ## Rewards
 
@@ -191,6 +193,7 @@ class AgileSlewV1Env(AgileSlewEnv):
     | Argument | Default | Meaning |
     |---|---|---|
     | ``action_mode`` | ``"body_torque"`` | ``"body_torque"`` or ``"wheel"`` |
+    | ``fine_error_deg`` | 1 | scale of the observation's tanh error entries, ° |
     | ``action_curve`` | ``"linear"`` | ``"linear"`` (command = a) or ``"cubic"`` (command = a³) |
     | ``sensor`` | ``"tracker"`` | ``"tracker"`` (star tracker, gyro, EKF) or ``"ideal"`` (truth plus noise) |
     | ``ideal_attitude_noise_arcsec`` | 5 | ideal sensor: white attitude noise, 1σ per axis, ″ (observed as σ); a (low, high) pair draws one level per episode, log-uniform |
@@ -207,7 +210,8 @@ class AgileSlewV1Env(AgileSlewEnv):
 
     * v1: body-torque action, scaled observation with the settle timer, log-scaled reward with settle bonus,
       divergence termination, episode length from the slew range, ideal sensor. Later, opt-in (the default
-      behaviour unchanged): ``action_curve="cubic"``, and a (low, high) range of ideal-sensor noise.
+      behaviour unchanged): ``action_curve="cubic"``, ``fine_error_deg``, and a (low, high) range of ideal-sensor
+      noise.
     """
 
     def __init__(
@@ -215,6 +219,7 @@ class AgileSlewV1Env(AgileSlewEnv):
         *,
         action_mode: str = "body_torque",
         action_curve: str = "linear",
+        fine_error_deg: float = 1.0,
         sensor: str = "tracker",
         ideal_attitude_noise_arcsec: float = 5.0,
         ideal_rate_noise_deg_s: float = 0.001,
@@ -233,6 +238,8 @@ class AgileSlewV1Env(AgileSlewEnv):
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         if action_curve not in ACTION_CURVES:
             raise ValueError(f"action_curve must be one of {ACTION_CURVES}, got {action_curve!r}")
+        if not isinstance(fine_error_deg, (int, float)) or not np.isfinite(fine_error_deg) or fine_error_deg <= 0:
+            raise ValueError(f"fine_error_deg must be a finite number > 0, got {fine_error_deg!r}")
         if sensor not in SENSORS:
             raise ValueError(f"sensor must be one of {SENSORS}, got {sensor!r}")
         for key in ("task", "w_settle"):
@@ -266,6 +273,7 @@ class AgileSlewV1Env(AgileSlewEnv):
             self.max_episode_s = math.ceil(t / self.control_period_s) * self.control_period_s
         self.action_mode = action_mode
         self.action_curve = action_curve
+        self.fine_error_rad = math.radians(float(fine_error_deg))
         self.sensor = sensor
         self.ideal_noise_range_rad = (noise_range[0] * ARCSEC, noise_range[1] * ARCSEC)
         self.ideal_attitude_noise_rad = self.ideal_noise_range_rad[0]
@@ -417,7 +425,7 @@ class AgileSlewV1Env(AgileSlewEnv):
         q_err = rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), self._q_target)
         e = rk.quat_to_rotvec(q_err)  # shortest rotation: angle in [0, π]
         obs[0:3] = e / math.pi
-        obs[3:6] = np.tanh(e / FINE_ANGLE_RAD)
+        obs[3:6] = np.tanh(e / self.fine_error_rad)
         f = self.diverge_rate_factor
         w = np.asarray(est.omega_body, dtype=np.float64)
         obs[6:9] = np.clip(w / self.max_rate_rad_s, -f, f)

@@ -36,13 +36,13 @@ V1_ID = "startracker/AgileSlew-v1"
 # slews that cover the agent benchmark's easy level with margin, the env's default settle tolerances; the cubic
 # action curve (small torques reachable); the attitude noise, and so the observed σ, drawn per episode over the range
 # the EKF reports (0.5-20″), so that the policy does not key on one σ value the tracker never shows
-TRAIN_ENV_KWARGS = dict(sensor="ideal", action_mode="body_torque", action_curve="cubic",
+TRAIN_ENV_KWARGS = dict(sensor="ideal", action_mode="body_torque", action_curve="cubic", fine_error_deg=0.2,
                         slew_angle_deg_range=(10.0, 60.0), ideal_attitude_noise_arcsec=(0.5, 20.0))
 # the first shipped SAC's task (linear action, fixed 5″ noise): kept for comparison runs
 LINEAR_ENV_KWARGS = dict(sensor="ideal", action_mode="body_torque", slew_angle_deg_range=(10.0, 60.0))
 ROBUST_ENV_KWARGS = dict(LINEAR_ENV_KWARGS, ideal_attitude_noise_arcsec=(0.5, 20.0))
 # entries of the training env's kwargs that define the policy's interface (kept when evaluating elsewhere)
-INTERFACE_KEYS = ("action_mode", "action_curve")
+INTERFACE_KEYS = ("action_mode", "action_curve", "fine_error_deg")
 CURVE_FIELDS = ("timesteps", "wall_s", "cpu_s", "episodes", "train_return_mean", "train_success_rate", "eval_return_mean",
                 "eval_success_rate", "eval_final_error_deg_median", "eval_settle_time_s_median")
 
@@ -144,9 +144,9 @@ def evaluate_model(model, env_kwargs: dict, n_episodes: int = 10, vecnormalize=N
                 eval_settle_time_s_median=float(np.median(settle)) if settle else float("nan"))
 
 
-def plot_curve(rows: list[dict], path, title: str = "") -> Path | None:
+def plot_curve(rows: list[dict], path, title: str = "", stage_starts=()) -> Path | None:
     """Learning curve PNG: return, success rate and final error against environment steps (None without
-    matplotlib)."""
+    matplotlib); ``stage_starts`` (environment steps) are marked by dotted lines (e.g. the fine-tuning stage)."""
     try:
         import matplotlib
 
@@ -170,6 +170,8 @@ def plot_curve(rows: list[dict], path, title: str = "") -> Path | None:
     ax[2].legend(fontsize=7)
     ax[2].set_ylabel("final error, median (°)")
     for a in ax:
+        for x in stage_starts:
+            a.axvline(x / 1000.0, color="grey", ls=":", lw=1.0)
         a.set_xlabel("environment steps (thousands)")
         a.grid(alpha=0.3)
     if title:
@@ -370,7 +372,10 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
     if curve.best_row is not None:
         best_json.write_text(json.dumps(dict(meta, final_eval=curve.best_row, best_of_curve=True), indent=2,
                                         default=str) + "\n")
-    plot_curve(rows, out_dir / "curve.png", title=f"{algo.upper()} on AgileSlew-v1 (ideal sensor), seed {seed}")
+    stages = (n_demo + total_timesteps,) if finetune_timesteps and total_timesteps else ()
+    plot_curve(rows, out_dir / "curve.png", stage_starts=stages,
+               title=f"{algo.upper()} on AgileSlew-v1 (ideal sensor, {kwargs.get('action_curve', 'linear')} action), "
+                     f"seed {seed}" + (" · dotted: fixed-entropy fine-tuning starts" if stages else ""))
     vec.close()
     return meta
 

@@ -37,6 +37,8 @@ def main(argv=None):
     ap.add_argument("--init", default=None, help="start from this checkpoint's weights")
     ap.add_argument("--action-curve", choices=("cubic", "linear"), default="cubic",
                     help="action -> torque: a³ (default) or a (the first shipped SAC's)")
+    ap.add_argument("--fine-error-deg", type=float, default=0.2,
+                    help="scale of the observation's tanh(error / scale) entries, deg (1 for the first shipped SAC's)")
     ap.add_argument("--fixed-noise", action="store_true",
                     help="ideal sensor noise fixed at 5 arcsec (the first shipped SAC's) instead of drawn per episode "
                          "in 0.5-20 arcsec (the tracker's σ range)")
@@ -45,7 +47,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     timesteps = args.timesteps if args.timesteps is not None else (100_000 if args.algo == "ppo" else 60_000)
     finetune = args.finetune if args.finetune is not None else (30_000 if args.algo == "sac" else 0)
-    env_kwargs = dict(TRAIN_ENV_KWARGS, action_curve=args.action_curve)
+    env_kwargs = dict(TRAIN_ENV_KWARGS, action_curve=args.action_curve, fine_error_deg=args.fine_error_deg)
     if args.fixed_noise:
         env_kwargs["ideal_attitude_noise_arcsec"] = 5.0
     demos = (0 if args.algo == "ppo" else 100) if args.demos is None else args.demos

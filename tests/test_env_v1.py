@@ -37,8 +37,9 @@ def test_registration_sets_the_step_limit_from_the_slew_range():
     env.close()
 
 
-def test_check_env_with_the_ideal_sensor():
-    env = gym.make(V1, sensor="ideal").unwrapped
+@pytest.mark.parametrize("kwargs", [{}, {"action_curve": "cubic", "ideal_attitude_noise_arcsec": (0.5, 20.0)}])
+def test_check_env_with_the_ideal_sensor(kwargs):
+    env = gym.make(V1, sensor="ideal", **kwargs).unwrapped
     check_env(env, skip_render_check=True)
 
 
@@ -76,6 +77,22 @@ def test_observation_error_is_the_shortest_rotation_to_the_target_and_within_bou
             obs, r, term, trunc, info = env.step(env.action_space.sample())
             if term or trunc:
                 break
+
+
+@pytest.mark.parametrize("fine_error_deg", [1.0, 0.2])
+def test_fine_error_entries_are_tanh_of_the_error_over_their_scale(fine_error_deg):
+    """Entries 3-5 are tanh(e / fine_error_deg) of the observed error rotation (default 1°; at 0.2° the 0.05°
+    tolerance reads tanh(0.25) = 0.245): checked near the target, where the entries are not saturated."""
+    kwargs = {} if fine_error_deg == 1.0 else {"fine_error_deg": fine_error_deg}
+    env = gym.make(V1, sensor="ideal", ideal_attitude_noise_arcsec=0.01, **kwargs)
+    _, info = env.reset(seed=4)
+    # a target 0.04° away from the start, about an axis fixed in the body
+    axis = np.array([0.6, -0.8, 0.0])
+    q_target = quat_multiply(info["q_true"], quat_from_rotvec(axis * math.radians(0.04)))
+    obs, info = env.reset(seed=4, options={"q_target": q_target})
+    e = axis * math.radians(0.04)
+    assert np.allclose(obs[3:6], np.tanh(e / math.radians(fine_error_deg)), atol=2e-4)  # 0.01″ noise
+    assert np.allclose(obs[0:3], e / math.pi, atol=1e-7)
 
 
 def test_observation_bounds_hold_over_settling_episodes_with_the_tracker():
@@ -234,6 +251,8 @@ def test_bad_arguments_are_named():
         gym.make(V1, action_mode="torque")
     with pytest.raises(ValueError, match="sensor"):
         gym.make(V1, sensor="perfect")
+    with pytest.raises(ValueError, match="fine_error_deg"):
+        gym.make(V1, fine_error_deg=0.0)
     with pytest.raises(ValueError, match="action_curve"):
         gym.make(V1, action_curve="quadratic")
     with pytest.raises(ValueError, match="max_episode_s"):

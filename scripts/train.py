@@ -4,7 +4,8 @@ learning curve (CSV and PNG) into ``--out``.
     python scripts/train.py --algo sac --out runs/sac
 
 (SAC: 100 PD demonstrations, 60,000 steps with automatic entropy, 30,000 steps at a fixed entropy coefficient of
-1e-4; the cubic action curve; the ideal sensor's noise drawn per episode over 0.5-20″.)
+1e-4; the cubic action curve, the 0.2° scale of the observation's fine error entries, the ideal sensor's noise
+drawn per episode over 0.5-20″. That is the shipped checkpoint's command: docs/rl.md.)
 
 ``--ship`` then copies the checkpoint into policies/checkpoints (refused if one is there, unless ``--overwrite``).
 """

@@ -334,7 +334,8 @@ class AgileSlewV1Env(AgileSlewEnv):
             self._q_target = quat_normalize(options["q_target"])
         if "faults" in options:  # checked as in v0; the ideal sensor has nothing to fail
             [Fault.from_dict(f) for f in options["faults"]]
-        self.spacecraft.set_state(q0, np.zeros(3), np.zeros(self.spacecraft.n_wheels), time_s=0.0)
+        # reset, not set_state: MuJoCo's warm start and wheel angles from the last episode would change the last bits
+        self.spacecraft.reset(q0, np.zeros(3), np.zeros(self.spacecraft.n_wheels), time_s=0.0)
         if self.disturbance_torque_Nm > 0:
             d = rng.normal(size=3)
             self._disturbance_world = d / np.linalg.norm(d) * self.disturbance_torque_Nm

@@ -25,14 +25,14 @@ from envs.agile_slew_v1 import action_from_command
 from policies.base import ControllerSpec, Policy
 
 __all__ = ["SB3Policy", "SACPolicy", "PPOPolicy", "train", "train_ppo", "make_training_env", "ALGOS",
-           "CHECKPOINT_DIR", "DEFAULT_CHECKPOINT", "TRAIN_ENV_KWARGS", "LINEAR_ENV_KWARGS", "ROBUST_ENV_KWARGS", "evaluate_model", "plot_curve"]
+           "CHECKPOINT_DIR", "DEFAULT_CHECKPOINT", "TRAIN_ENV_KWARGS", "LINEAR_ENV_KWARGS", "ROBUST_ENV_KWARGS",
+           "evaluate_model", "plot_curve"]
 
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 DEFAULT_CHECKPOINT = CHECKPOINT_DIR / "ppo_agileslew_v1.zip"
 ALGOS = ("sac", "ppo", "td3")
 V1_ID = "startracker/AgileSlew-v1"
 # the training task: -v1 with the ideal sensor (cheap; the tracker's own cost is measured by evaluating on it),
-# slews that cover the agent benchmark's easy level with margin, the env's default settle tolerances
 # slews that cover the agent benchmark's easy level with margin, the env's default settle tolerances; the cubic
 # action curve (small torques reachable); the attitude noise, and so the observed σ, drawn per episode over the range
 # the EKF reports (0.5-20″), so that the policy does not key on one σ value the tracker never shows
@@ -43,8 +43,8 @@ LINEAR_ENV_KWARGS = dict(sensor="ideal", action_mode="body_torque", slew_angle_d
 ROBUST_ENV_KWARGS = dict(LINEAR_ENV_KWARGS, ideal_attitude_noise_arcsec=(0.5, 20.0))
 # entries of the training env's kwargs that define the policy's interface (kept when evaluating elsewhere)
 INTERFACE_KEYS = ("action_mode", "action_curve", "fine_error_deg")
-CURVE_FIELDS = ("timesteps", "wall_s", "cpu_s", "episodes", "train_return_mean", "train_success_rate", "eval_return_mean",
-                "eval_success_rate", "eval_final_error_deg_median", "eval_settle_time_s_median")
+CURVE_FIELDS = ("timesteps", "wall_s", "cpu_s", "episodes", "train_return_mean", "train_success_rate",
+                "eval_return_mean", "eval_success_rate", "eval_final_error_deg_median", "eval_settle_time_s_median")
 
 
 def _require_sb3():
@@ -332,8 +332,8 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
                 print(f"[{algo}] {row['timesteps']:>7d} steps {row['wall_s']:>6.0f} s  episodes {row['episodes']:>5d}  "
                       f"train return {row['train_return_mean']:7.2f} settled {100 * row['train_success_rate']:3.0f} %  "
                       f"eval return {row['eval_return_mean']:7.2f} settled {100 * row['eval_success_rate']:3.0f} %  "
-                      f"final error {row['eval_final_error_deg_median']:.3g}°  cpu {row['cpu_s']:.0f} s  load {os.getloadavg()[0]:.1f}",
-                      flush=True)
+                      f"final error {row['eval_final_error_deg_median']:.3g}°  cpu {row['cpu_s']:.0f} s  "
+                      f"load {os.getloadavg()[0]:.1f}", flush=True)
 
     if init_from is not None:
         model.set_parameters(str(init_from), exact_match=False, device="cpu")  # a fine-tuned one has no entropy optimiser

@@ -61,10 +61,10 @@ def main(argv=None):
         sys.exit(f"{checkpoint_paths(out / name)[0]} exists: choose another --out or pass --overwrite")
     t0 = time.perf_counter()
     meta = train(args.algo, timesteps, out_dir=out, seed=args.seed, n_envs=n_envs, eval_every=args.eval_every,
-                 name=name, demo_episodes=demos,
-                 env_kwargs=env_kwargs, finetune_timesteps=finetune, finetune_ent_coef=args.finetune_ent_coef, init_from=args.init)
-    print(f"trained {args.algo} for {timesteps} + {finetune} steps on {n_envs} env(s) in {time.perf_counter() - t0:.0f} s -> {out}/"
-          f"{name}.zip, curve {out}/curve.png")
+                 name=name, demo_episodes=demos, env_kwargs=env_kwargs, finetune_timesteps=finetune,
+                 finetune_ent_coef=args.finetune_ent_coef, init_from=args.init)
+    print(f"trained {args.algo} for {timesteps} + {finetune} steps on {n_envs} env(s) in "
+          f"{time.perf_counter() - t0:.0f} s -> {out}/{name}.zip, curve {out}/curve.png")
     if meta.get("final_eval"):
         print(f"last evaluation: {100 * meta['final_eval']['eval_success_rate']:.0f} % settled")
     if args.ship:

@@ -14,12 +14,17 @@ from envs.faults import Fault
 from startracker.kernels import rotations as rk
 from startracker.rotations import quat_from_rotvec, quat_multiply, quat_normalize, quat_random
 
-__all__ = ["AgileSlewV1Env", "BodyTorqueAllocator", "ACTION_MODES", "SENSORS", "episode_seconds_for"]
+__all__ = ["AgileSlewV1Env", "BodyTorqueAllocator", "ACTION_MODES", "ACTION_CURVES", "command_from_action",
+           "action_from_command", "SENSORS", "episode_seconds_for"]
 
 ACTION_MODES = ("body_torque", "wheel")
+# action value -> command: "linear" (the default) or "cubic" (command = a³: fine resolution near zero for a
+# tanh-squashed policy, full authority at |a| = 1)
+ACTION_CURVES = ("linear", "cubic")
 SENSORS = ("tracker", "ideal")
 ARCSEC = math.pi / (180.0 * 3600.0)
-# scales of the observation's near-target entries: tanh(x / scale) resolves the settle window
+# scales of the observation's near-target entries: tanh(x / scale) resolves the settle window (the angle's scale is
+# the default of ``fine_error_deg``)
 FINE_ANGLE_RAD = math.radians(1.0)
 FINE_RATE_RAD_S = math.radians(0.2)
 # log-scaled attitude σ: 0.2″ maps to -1, π (lost) to +1
@@ -90,6 +95,19 @@ class BodyTorqueAllocator:
         return tau_b, s * self.null
 
 
+def command_from_action(action, curve: str = "linear") -> np.ndarray:
+    """The command (fraction of the torque limit) of an action in [-1, 1]: ``a`` (``"linear"``) or ``a³``
+    (``"cubic"``); same shape as ``action``."""
+    a = np.asarray(action, dtype=np.float64)
+    return a * a * a if curve == "cubic" else a
+
+
+def action_from_command(command, curve: str = "linear") -> np.ndarray:
+    """Inverse of :func:`command_from_action` (the action that gives ``command``)."""
+    c = np.asarray(command, dtype=np.float64)
+    return np.cbrt(c) if curve == "cubic" else c
+
+
 def log_scale(x: float, unit: float, x_max: float) -> float:
     """``log(1 + x/unit) / log(1 + x_max/unit)``, clipped to [0, 1]: 0 at x = 0, 1 at ``x_max``, the same change per
     decade above ``unit``."""
@@ -119,6 +137,11 @@ class AgileSlewV1Env(AgileSlewEnv):
     |-----|------------------------------------|-----|-----|------------------------------|
     | 0-2 | body torque about body x, y, z      | -1  | 1   | fraction of wheel max torque |
 
+    ``action_curve="cubic"`` commands ``a³`` instead of ``a`` (in either action mode): a torque of 1 % of the limit
+    is the action 0.22 instead of 0.01, so a tanh-squashed policy reaches the small torques that hold the settle
+    window (one step of full torque changes the rate by ~0.57°/s, eleven times the 0.05°/s tolerance). The default
+    ``"linear"`` is the action the shipped v1 checkpoints before the cubic one were trained with.
+
     ## Observation Space
 
     ``Box(float32)``; from the estimate (``sensor="tracker"``) or the noisy truth (``sensor="ideal"``), never the
@@ -128,7 +151,7 @@ class AgileSlewV1Env(AgileSlewEnv):
     | Num     | Observation                                              | Min | Max | Unit |
     |---------|----------------------------------------------------------|-----|-----|------|
     | 0-2     | attitude error rotation vector / π (body)                | -1  | 1   | -    |
-    | 3-5     | tanh(attitude error rotation vector / 1°)                | -1  | 1   | -    |
+    | 3-5     | tanh(attitude error rotation vector / ``fine_error_deg``) | -1  | 1   | -    |
     | 6-8     | body rate / ``max_rate_deg_s``, clipped                  | -f  | f   | -    |
     | 9-11    | tanh(body rate / 0.2°/s)                                 | -1  | 1   | -    |
     | 12-15   | wheel momentum / capacity                                | -1  | 1   | -    |
@@ -136,7 +159,8 @@ class AgileSlewV1Env(AgileSlewEnv):
     | 19      | attitude 1σ, log scale: 2·log(σ/1e-6 rad)/log(π/1e-6) − 1 | -1  | 1   | -    |
     | 20      | settle timer / ``settle_hold_s``                         | 0   | 1   | -    |
 
-    ``f`` is ``diverge_rate_factor`` (rates beyond it end the episode). ``observation_layout`` names the slices.
+    ``f`` is ``diverge_rate_factor`` (rates beyond it end the episode). ``fine_error_deg`` is 1° by default; at
+    0.2° the settle tolerance (0.05°) reads 0.245 in entries 3-5, as the rate tolerance does in entries 9-11. ``observation_layout`` names the slices.
 
     ## Rewards
 
@@ -169,6 +193,8 @@ class AgileSlewV1Env(AgileSlewEnv):
     | Argument | Default | Meaning |
     |---|---|---|
     | ``action_mode`` | ``"body_torque"`` | ``"body_torque"`` or ``"wheel"`` |
+    | ``fine_error_deg`` | 1 | scale of the observation's tanh error entries, ° |
+    | ``action_curve`` | ``"linear"`` | ``"linear"`` (command = a) or ``"cubic"`` (command = a³) |
     | ``sensor`` | ``"tracker"`` | ``"tracker"`` (star tracker, gyro, EKF) or ``"ideal"`` (truth plus noise) |
     | ``ideal_attitude_noise_arcsec`` | 5 | ideal sensor: white attitude noise, 1σ per axis, ″ (observed as σ); a (low, high) pair draws one level per episode, log-uniform |
     | ``ideal_rate_noise_deg_s`` | 0.001 | ideal sensor: white rate noise, 1σ per axis, °/s (a navigation-to-tactical gyro averaged over 0.1 s) |
@@ -183,13 +209,17 @@ class AgileSlewV1Env(AgileSlewEnv):
     ## Version History
 
     * v1: body-torque action, scaled observation with the settle timer, log-scaled reward with settle bonus,
-      divergence termination, episode length from the slew range, ideal sensor.
+      divergence termination, episode length from the slew range, ideal sensor. Later, opt-in (the default
+      behaviour unchanged): ``action_curve="cubic"``, ``fine_error_deg``, and a (low, high) range of ideal-sensor
+      noise.
     """
 
     def __init__(
         self,
         *,
         action_mode: str = "body_torque",
+        action_curve: str = "linear",
+        fine_error_deg: float = 1.0,
         sensor: str = "tracker",
         ideal_attitude_noise_arcsec: float = 5.0,
         ideal_rate_noise_deg_s: float = 0.001,
@@ -206,6 +236,10 @@ class AgileSlewV1Env(AgileSlewEnv):
     ):
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
+        if action_curve not in ACTION_CURVES:
+            raise ValueError(f"action_curve must be one of {ACTION_CURVES}, got {action_curve!r}")
+        if not isinstance(fine_error_deg, (int, float)) or not np.isfinite(fine_error_deg) or fine_error_deg <= 0:
+            raise ValueError(f"fine_error_deg must be a finite number > 0, got {fine_error_deg!r}")
         if sensor not in SENSORS:
             raise ValueError(f"sensor must be one of {SENSORS}, got {sensor!r}")
         for key in ("task", "w_settle"):
@@ -238,6 +272,8 @@ class AgileSlewV1Env(AgileSlewEnv):
                                     self.settle_hold_s)
             self.max_episode_s = math.ceil(t / self.control_period_s) * self.control_period_s
         self.action_mode = action_mode
+        self.action_curve = action_curve
+        self.fine_error_rad = math.radians(float(fine_error_deg))
         self.sensor = sensor
         self.ideal_noise_range_rad = (noise_range[0] * ARCSEC, noise_range[1] * ARCSEC)
         self.ideal_attitude_noise_rad = self.ideal_noise_range_rad[0]
@@ -298,7 +334,8 @@ class AgileSlewV1Env(AgileSlewEnv):
             self._q_target = quat_normalize(options["q_target"])
         if "faults" in options:  # checked as in v0; the ideal sensor has nothing to fail
             [Fault.from_dict(f) for f in options["faults"]]
-        self.spacecraft.set_state(q0, np.zeros(3), np.zeros(self.spacecraft.n_wheels), time_s=0.0)
+        # reset, not set_state: MuJoCo's warm start and wheel angles from the last episode would change the last bits
+        self.spacecraft.reset(q0, np.zeros(3), np.zeros(self.spacecraft.n_wheels), time_s=0.0)
         if self.disturbance_torque_Nm > 0:
             d = rng.normal(size=3)
             self._disturbance_world = d / np.linalg.norm(d) * self.disturbance_torque_Nm
@@ -317,7 +354,7 @@ class AgileSlewV1Env(AgileSlewEnv):
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
         if not np.isfinite(a).all():
             raise ValueError("action contains NaN or inf")
-        a = np.minimum(np.maximum(a, -1.0), 1.0)
+        a = command_from_action(np.minimum(np.maximum(a, -1.0), 1.0), self.action_curve)
         sc = self.spacecraft
         if self.action_mode == "body_torque":
             h_w = sc.wheel_speeds_rad_s * sc.wheel_inertia_kg_m2
@@ -389,7 +426,7 @@ class AgileSlewV1Env(AgileSlewEnv):
         q_err = rk.quat_multiply(rk.quat_conjugate(est.q_body_to_icrs), self._q_target)
         e = rk.quat_to_rotvec(q_err)  # shortest rotation: angle in [0, π]
         obs[0:3] = e / math.pi
-        obs[3:6] = np.tanh(e / FINE_ANGLE_RAD)
+        obs[3:6] = np.tanh(e / self.fine_error_rad)
         f = self.diverge_rate_factor
         w = np.asarray(est.omega_body, dtype=np.float64)
         obs[6:9] = np.clip(w / self.max_rate_rad_s, -f, f)

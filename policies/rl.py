@@ -21,24 +21,30 @@ from pathlib import Path
 
 import numpy as np
 
+from envs.agile_slew_v1 import action_from_command
 from policies.base import ControllerSpec, Policy
 
 __all__ = ["SB3Policy", "SACPolicy", "PPOPolicy", "train", "train_ppo", "make_training_env", "ALGOS",
-           "CHECKPOINT_DIR", "DEFAULT_CHECKPOINT", "TRAIN_ENV_KWARGS", "evaluate_model", "plot_curve"]
+           "CHECKPOINT_DIR", "DEFAULT_CHECKPOINT", "TRAIN_ENV_KWARGS", "LINEAR_ENV_KWARGS", "ROBUST_ENV_KWARGS",
+           "evaluate_model", "plot_curve"]
 
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 DEFAULT_CHECKPOINT = CHECKPOINT_DIR / "ppo_agileslew_v1.zip"
 ALGOS = ("sac", "ppo", "td3")
 V1_ID = "startracker/AgileSlew-v1"
 # the training task: -v1 with the ideal sensor (cheap; the tracker's own cost is measured by evaluating on it),
-# slews that cover the agent benchmark's easy level with margin, the env's default settle tolerances
-TRAIN_ENV_KWARGS = dict(sensor="ideal", action_mode="body_torque", slew_angle_deg_range=(10.0, 60.0))
-# the fine-tuning stage: the attitude noise (and so the observed σ) drawn per episode over the range the EKF reports
-ROBUST_ENV_KWARGS = dict(TRAIN_ENV_KWARGS, ideal_attitude_noise_arcsec=(0.5, 20.0))
+# slews that cover the agent benchmark's easy level with margin, the env's default settle tolerances; the cubic
+# action curve (small torques reachable); the attitude noise, and so the observed σ, drawn per episode over the range
+# the EKF reports (0.5-20″), so that the policy does not key on one σ value the tracker never shows
+TRAIN_ENV_KWARGS = dict(sensor="ideal", action_mode="body_torque", action_curve="cubic", fine_error_deg=0.2,
+                        slew_angle_deg_range=(10.0, 60.0), ideal_attitude_noise_arcsec=(0.5, 20.0))
+# the first shipped SAC's task (linear action, fixed 5″ noise): kept for comparison runs
+LINEAR_ENV_KWARGS = dict(sensor="ideal", action_mode="body_torque", slew_angle_deg_range=(10.0, 60.0))
+ROBUST_ENV_KWARGS = dict(LINEAR_ENV_KWARGS, ideal_attitude_noise_arcsec=(0.5, 20.0))
 # entries of the training env's kwargs that define the policy's interface (kept when evaluating elsewhere)
-INTERFACE_KEYS = ("action_mode",)
-CURVE_FIELDS = ("timesteps", "wall_s", "episodes", "train_return_mean", "train_success_rate", "eval_return_mean",
-                "eval_success_rate", "eval_final_error_deg_median", "eval_settle_time_s_median")
+INTERFACE_KEYS = ("action_mode", "action_curve", "fine_error_deg")
+CURVE_FIELDS = ("timesteps", "wall_s", "cpu_s", "episodes", "train_return_mean", "train_success_rate",
+                "eval_return_mean", "eval_success_rate", "eval_final_error_deg_median", "eval_settle_time_s_median")
 
 
 def _require_sb3():
@@ -138,9 +144,9 @@ def evaluate_model(model, env_kwargs: dict, n_episodes: int = 10, vecnormalize=N
                 eval_settle_time_s_median=float(np.median(settle)) if settle else float("nan"))
 
 
-def plot_curve(rows: list[dict], path, title: str = "") -> Path | None:
+def plot_curve(rows: list[dict], path, title: str = "", stage_starts=()) -> Path | None:
     """Learning curve PNG: return, success rate and final error against environment steps (None without
-    matplotlib)."""
+    matplotlib); ``stage_starts`` (environment steps) are marked by dotted lines (e.g. the fine-tuning stage)."""
     try:
         import matplotlib
 
@@ -164,6 +170,8 @@ def plot_curve(rows: list[dict], path, title: str = "") -> Path | None:
     ax[2].legend(fontsize=7)
     ax[2].set_ylabel("final error, median (°)")
     for a in ax:
+        for x in stage_starts:
+            a.axvline(x / 1000.0, color="grey", ls=":", lw=1.0)
         a.set_xlabel("environment steps (thousands)")
         a.grid(alpha=0.3)
     if title:
@@ -175,14 +183,16 @@ def plot_curve(rows: list[dict], path, title: str = "") -> Path | None:
 
 
 # ---------------------------------------------------------------------------------------------------- training
-def demonstration_action(obs, inertia_kg_m2, max_rate_rad_s: float, wheel_max_torque_Nm: float) -> np.ndarray:
-    """A rate-limited PD on the AgileSlew-v1 observation (decoded with its documented scales), (3,) in [-1, 1]:
-    the demonstrations that seed an off-policy learner's replay buffer (``train(..., demo_episodes=N)``)."""
+def demonstration_action(obs, inertia_kg_m2, max_rate_rad_s: float, wheel_max_torque_Nm: float,
+                         action_curve: str = "linear") -> np.ndarray:
+    """A rate-limited PD on the AgileSlew-v1 observation (decoded with its documented scales), (3,) in [-1, 1]
+    (the action that gives the PD's torque through ``action_curve``): the demonstrations that seed an off-policy
+    learner's replay buffer (``train(..., demo_episodes=N)``)."""
     e = np.asarray(obs[0:3], dtype=np.float64) * np.pi
     w = np.asarray(obs[6:9], dtype=np.float64) * max_rate_rad_s
     w_ref = np.clip(e / 1.8, -0.3, 0.3)
     tau = np.asarray(inertia_kg_m2) @ (1.8 * (w_ref - w))
-    return np.clip(tau / wheel_max_torque_Nm, -1.0, 1.0)
+    return action_from_command(np.clip(tau / wheel_max_torque_Nm, -1.0, 1.0), action_curve)
 
 
 def add_demonstrations(model, vec, n_episodes: int, noise: float, seed: int) -> int:
@@ -191,12 +201,13 @@ def add_demonstrations(model, vec, n_episodes: int, noise: float, seed: int) -> 
     rng = np.random.default_rng(seed)
     spec = vec.env_method("controller_spec")[0]
     max_rate = vec.get_attr("max_rate_rad_s")[0]
+    curve = vec.get_attr("action_curve")[0]
     obs = vec.reset()
     done_episodes, n = 0, 0
     while done_episodes < n_episodes:
         raw = vec.get_original_obs() if hasattr(vec, "get_original_obs") else obs
-        actions = np.stack([demonstration_action(o, spec["inertia_kg_m2"], max_rate, spec["wheel_max_torque_Nm"])
-                            for o in raw])
+        actions = np.stack([demonstration_action(o, spec["inertia_kg_m2"], max_rate, spec["wheel_max_torque_Nm"],
+                                                 curve) for o in raw])
         # exploration noise fades inside 5° so that the demonstrations also settle (0.05°/s is 9 % of one step's
         # full-torque rate change)
         fade = np.minimum(np.linalg.norm(raw[:, 0:3] * np.pi, axis=1, keepdims=True) / np.radians(5.0), 1.0)
@@ -280,13 +291,13 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
     rows: list[dict] = []
     # evaluated as the agent benchmark's easy level is scored: 60 s episodes, the env's settle tolerances
     eval_kwargs = dict(kwargs, max_episode_s=60.0, max_episode_steps=600)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
 
     class Curve(BaseCallback):
         def __init__(self):
             super().__init__()
             self.returns, self.successes, self.episodes, self.next_eval = [], [], 0, eval_every
-            self.best_success, self.best_row = 0.0, None
+            self.best_key, self.best_row = (0.0, -np.inf), None
 
         def _on_step(self) -> bool:
             for info in self.locals.get("infos", ()):
@@ -305,14 +316,15 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
             ev = evaluate_model(self.model, eval_kwargs, eval_episodes, vecnormalize=vn)
             recent = slice(-50, None)
             row = dict(timesteps=int(self.num_timesteps) + n_demo, wall_s=round(time.perf_counter() - t0, 1),
-                       episodes=self.episodes,
+                       cpu_s=round(time.process_time() - c0, 1), episodes=self.episodes,
                        train_return_mean=float(np.mean(self.returns[recent])) if self.returns else float("nan"),
                        train_success_rate=float(np.mean(self.successes[recent])) if self.successes else 0.0, **ev)
             rows.append(row)
             _write_curve(rows, out_dir / "curve.csv")
-            if row["eval_success_rate"] > self.best_success:
-                # the best evaluated model so far, shipped if the last one is worse
-                self.best_success, self.best_row = row["eval_success_rate"], row
+            key = (row["eval_success_rate"], row["eval_return_mean"])
+            if row["eval_success_rate"] > 0 and key > self.best_key:
+                # the best evaluated model so far (success, then return), shipped if the last one is worse
+                self.best_key, self.best_row = key, row
                 self.model.save(best_zip)
                 if normalize:
                     vec.save(str(best_vn))
@@ -320,7 +332,8 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
                 print(f"[{algo}] {row['timesteps']:>7d} steps {row['wall_s']:>6.0f} s  episodes {row['episodes']:>5d}  "
                       f"train return {row['train_return_mean']:7.2f} settled {100 * row['train_success_rate']:3.0f} %  "
                       f"eval return {row['eval_return_mean']:7.2f} settled {100 * row['eval_success_rate']:3.0f} %  "
-                      f"final error {row['eval_final_error_deg_median']:.3g}°", flush=True)
+                      f"final error {row['eval_final_error_deg_median']:.3g}°  cpu {row['cpu_s']:.0f} s  "
+                      f"load {os.getloadavg()[0]:.1f}", flush=True)
 
     if init_from is not None:
         model.set_parameters(str(init_from), exact_match=False, device="cpu")  # a fine-tuned one has no entropy optimiser
@@ -351,14 +364,18 @@ def train(algo: str = "sac", total_timesteps: int = 150_000, out_dir="runs/sac",
                 total_timesteps=int(total_timesteps), finetune_timesteps=int(finetune_timesteps),
                 finetune_ent_coef=finetune_ent_coef, init_from=str(init_from) if init_from else None, demo_episodes=demo_episodes, demo_noise=demo_noise,
                 demo_transitions=n_demo, n_envs=n_envs, seed=seed, normalize=normalize,
-                wall_s=round(wall, 1), torch_threads=1, sb3_version=stable_baselines3.__version__,
+                wall_s=round(wall, 1), cpu_s=round(time.process_time() - c0, 1),
+                load_average_end=[round(v, 2) for v in os.getloadavg()], torch_threads=1, sb3_version=stable_baselines3.__version__,
                 hyperparameters={k: v for k, v in _model_kwargs(algo, seed).items() if k not in ("verbose", "device")},
                 final_eval=rows[-1] if rows else None)
     json_path.write_text(json.dumps(meta, indent=2, default=str) + "\n")
     if curve.best_row is not None:
         best_json.write_text(json.dumps(dict(meta, final_eval=curve.best_row, best_of_curve=True), indent=2,
                                         default=str) + "\n")
-    plot_curve(rows, out_dir / "curve.png", title=f"{algo.upper()} on AgileSlew-v1 (ideal sensor), seed {seed}")
+    stages = (n_demo + total_timesteps,) if finetune_timesteps and total_timesteps else ()
+    plot_curve(rows, out_dir / "curve.png", stage_starts=stages,
+               title=f"{algo.upper()} on AgileSlew-v1 (ideal sensor, {kwargs.get('action_curve', 'linear')} action), "
+                     f"seed {seed}" + (" · dotted: fixed-entropy fine-tuning starts" if stages else ""))
     vec.close()
     return meta
 

@@ -37,8 +37,9 @@ def test_registration_sets_the_step_limit_from_the_slew_range():
     env.close()
 
 
-def test_check_env_with_the_ideal_sensor():
-    env = gym.make(V1, sensor="ideal").unwrapped
+@pytest.mark.parametrize("kwargs", [{}, {"action_curve": "cubic", "ideal_attitude_noise_arcsec": (0.5, 20.0)}])
+def test_check_env_with_the_ideal_sensor(kwargs):
+    env = gym.make(V1, sensor="ideal", **kwargs).unwrapped
     check_env(env, skip_render_check=True)
 
 
@@ -62,6 +63,27 @@ def test_ideal_sensor_is_reproducible_and_noisy_as_stated():
     assert 5 * math.sqrt(3) * 0.6 < rms < 5 * math.sqrt(3) * 1.4
 
 
+def test_ideal_sensor_repeats_an_episode_bit_for_bit_on_the_same_instance():
+    """A second reset with the same seed on one instance gives the trajectory of a fresh instance, bit for bit
+    (MuJoCo's warm start and the wheel angles of the previous episode must not leak into the arithmetic)."""
+    kwargs = dict(sensor="ideal", action_curve="cubic", ideal_attitude_noise_arcsec=(0.5, 20.0))
+    actions = np.random.default_rng(5).uniform(-0.3, 0.3, (40, 3)).astype(np.float32)
+
+    def run(env, seed):
+        obs, _ = env.reset(seed=seed)
+        out = [obs]
+        for a in actions:
+            obs, r, term, trunc, info = env.step(a)
+            out.append(np.concatenate([obs, info["omega_true_body"], info["q_true"], [r]]))
+        return out
+
+    env = gym.make(V1, **kwargs)
+    run(env, 8)
+    again = run(env, 7)
+    fresh = run(gym.make(V1, **kwargs), 7)
+    assert all(np.array_equal(a, b) for a, b in zip(again, fresh))
+
+
 def test_observation_error_is_the_shortest_rotation_to_the_target_and_within_bounds():
     env = gym.make(V1, sensor="ideal", slew_angle_deg_range=(170.0, 180.0))
     for seed in range(3):
@@ -76,6 +98,22 @@ def test_observation_error_is_the_shortest_rotation_to_the_target_and_within_bou
             obs, r, term, trunc, info = env.step(env.action_space.sample())
             if term or trunc:
                 break
+
+
+@pytest.mark.parametrize("fine_error_deg", [1.0, 0.2])
+def test_fine_error_entries_are_tanh_of_the_error_over_their_scale(fine_error_deg):
+    """Entries 3-5 are tanh(e / fine_error_deg) of the observed error rotation (default 1°; at 0.2° the 0.05°
+    tolerance reads tanh(0.25) = 0.245): checked near the target, where the entries are not saturated."""
+    kwargs = {} if fine_error_deg == 1.0 else {"fine_error_deg": fine_error_deg}
+    env = gym.make(V1, sensor="ideal", ideal_attitude_noise_arcsec=0.01, **kwargs)
+    _, info = env.reset(seed=4)
+    # a target 0.04° away from the start, about an axis fixed in the body
+    axis = np.array([0.6, -0.8, 0.0])
+    q_target = quat_multiply(info["q_true"], quat_from_rotvec(axis * math.radians(0.04)))
+    obs, info = env.reset(seed=4, options={"q_target": q_target})
+    e = axis * math.radians(0.04)
+    assert np.allclose(obs[3:6], np.tanh(e / math.radians(fine_error_deg)), atol=2e-4)  # 0.01″ noise
+    assert np.allclose(obs[0:3], e / math.pi, atol=1e-7)
 
 
 def test_observation_bounds_hold_over_settling_episodes_with_the_tracker():
@@ -130,6 +168,29 @@ def test_body_torque_action_accelerates_the_bus_as_J_inverse_tau():
     j_eff = sc.inertia_kg_m2 - sc.wheel_inertia_kg_m2 * axes.T @ axes
     expected = np.linalg.solve(j_eff, a.astype(np.float64) * 0.5) * 0.1
     assert np.allclose(dw, expected, rtol=1e-3, atol=1e-7)
+
+
+def test_cubic_action_curve_commands_the_cube_and_keeps_full_authority():
+    """``action_curve="cubic"``: the bus accelerates as J_eff⁻¹ (a³ τ_max), so a = 0.3 gives 2.7 % of the torque
+    limit, and a = ±1 still the full limit; the default stays linear."""
+    a = np.array([0.3, -0.2, 1.0], np.float32)
+    rates = {}
+    for curve in ("linear", "cubic"):
+        env = gym.make(V1, sensor="ideal", action_curve=curve)
+        env.reset(seed=0)
+        env.step(a)
+        sc = env.unwrapped.spacecraft
+        axes = sc.wheel_axes_body
+        j_eff = sc.inertia_kg_m2 - sc.wheel_inertia_kg_m2 * axes.T @ axes
+        cmd = a.astype(np.float64) ** (3 if curve == "cubic" else 1)
+        # the allocator scales a torque that saturates a wheel down with its direction kept
+        peak = np.max(np.abs(np.linalg.pinv(axes.T) @ (cmd * 0.5)))
+        expected = np.linalg.solve(j_eff, cmd * 0.5 * min(1.0, 0.95 * 0.5 / peak)) * 0.1
+        assert np.allclose(sc.omega_body, expected, rtol=1e-3, atol=1e-8)
+        rates[curve] = sc.omega_body.copy()
+        env.close()
+    assert not np.allclose(rates["linear"], rates["cubic"])
+    assert gym.make(V1).unwrapped.action_curve == "linear"
 
 
 def test_null_space_momentum_decays_and_makes_no_body_motion():
@@ -211,6 +272,10 @@ def test_bad_arguments_are_named():
         gym.make(V1, action_mode="torque")
     with pytest.raises(ValueError, match="sensor"):
         gym.make(V1, sensor="perfect")
+    with pytest.raises(ValueError, match="fine_error_deg"):
+        gym.make(V1, fine_error_deg=0.0)
+    with pytest.raises(ValueError, match="action_curve"):
+        gym.make(V1, action_curve="quadratic")
     with pytest.raises(ValueError, match="max_episode_s"):
         gym.make(V1, max_episode_s="long")
     env = gym.make(V1, sensor="ideal")

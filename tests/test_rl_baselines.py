@@ -18,7 +18,8 @@ def test_load_policy_sac_loads_and_acts_on_its_env():
     cls = load_policy("sac")
     assert cls is SACPolicy
     env_id, kwargs = policy_env("sac")
-    assert env_id == "startracker/AgileSlew-v1" and kwargs == {"action_mode": "body_torque"}
+    assert env_id == "startracker/AgileSlew-v1" and kwargs == {"action_mode": "body_torque", "action_curve": "cubic",
+                                                         "fine_error_deg": 0.2}
     env = gym.make(env_id, **kwargs)
     pol = cls.from_env(env)
     obs, _ = env.reset(seed=0)
@@ -37,15 +38,13 @@ def test_scripted_policies_stay_on_v0():
     assert env_id == "startracker/AgileSlew-v1" and kwargs["max_episode_steps"] == 600
 
 
-def test_shipped_sac_slews_the_easy_scenarios_with_the_star_tracker_and_settles_with_the_ideal_sensor():
-    """The agent benchmark's easy level (navigation gyro, paper000 multi-exposure, 60 s, 0.05°/0.05°/s/2 s): with
-    the star tracker the shipped SAC brings 25-35° slews to within 0.2° (it does not settle: docs/rl.md); with the
-    ideal sensor the first two scenarios settle."""
-    row = run_agent_benchmark("sac", difficulties=("easy",), n_per_difficulty=3, progress=False)[0]
-    assert row["env_id"] == "startracker/AgileSlew-v1" and row["sensor"] == "tracker"
-    assert row["final_pointing_error_deg_median"] < 0.2
-    row = run_agent_benchmark("sac", difficulties=("easy",), n_per_difficulty=2, progress=False, sensor="ideal")[0]
-    assert row["sensor"] == "ideal" and row["success_rate"] == 1.0
+def test_shipped_sac_settles_the_easy_scenarios_with_the_star_tracker():
+    """The issue's bar on a small episode count: the agent benchmark's easy level (navigation gyro, paper000
+    multi-exposure, 20-45° slews, 60 s, settled = 0.05° / 0.05°/s held 2 s, judged on the truth), the shipped SAC
+    acting on the EKF estimate of the real star tracker settles at least 80 % of the first ten scenarios."""
+    row = run_agent_benchmark("sac", difficulties=("easy",), n_per_difficulty=10, progress=False)[0]
+    assert row["env_id"] == "startracker/AgileSlew-v1" and row["sensor"] == "tracker" and row["episodes"] == 10
+    assert row["success_rate"] >= 0.8
     assert row["settle_time_s_median"] < 30.0
 
 
@@ -80,8 +79,37 @@ def test_training_writes_checkpoint_metadata_and_curve(tmp_path):
     # the checkpoint loads as a policy of its own (instance) env
     env = gym.make("startracker/AgileSlew-v1", sensor="ideal")
     pol = SACPolicy.from_env(env, checkpoint=zip_path)
-    assert pol.trained_env() == ("startracker/AgileSlew-v1", {"action_mode": "body_torque"})
+    assert pol.trained_env() == ("startracker/AgileSlew-v1", {"action_mode": "body_torque", "action_curve": "cubic",
+                                                              "fine_error_deg": 0.2})
     env.close()
+
+
+def test_demonstrations_command_the_same_torque_through_either_action_curve():
+    """The PD demonstrations that seed SAC's buffer are the action whose command (a³ with the cubic curve) is the
+    PD's torque: the same episode, step for step, whichever curve the learner acts through."""
+    from policies.rl import demonstration_action
+
+    traces = {}
+    for curve in ("linear", "cubic"):
+        env = gym.make("startracker/AgileSlew-v1", sensor="ideal", action_curve=curve)
+        u = env.unwrapped
+        spec = u.controller_spec()
+        obs, _ = env.reset(seed=3, options={"slew_angle_deg": 25.0})
+        errs, done, actions = [], False, []
+        while not done:
+            a = demonstration_action(obs, spec["inertia_kg_m2"], u.max_rate_rad_s, spec["wheel_max_torque_Nm"], curve)
+            actions.append(a)
+            obs, _, term, trunc, info = env.step(a.astype(np.float32))
+            errs.append(info["pointing_error_deg"])
+            done = term or trunc
+        traces[curve] = (np.array(errs), np.array(actions), info["settled"])
+        env.close()
+    (e_lin, a_lin, ok_lin), (e_cub, a_cub, ok_cub) = traces["linear"], traces["cubic"]
+    assert ok_lin and ok_cub and len(e_lin) == len(e_cub)
+    assert np.allclose(e_lin, e_cub, atol=1e-4)
+    # near the target the cubic action is much larger than the torque fraction it commands
+    small = np.abs(a_lin) < 0.01
+    assert small.any() and np.all(np.abs(a_cub[small]) >= np.abs(a_lin[small]))
 
 
 def test_train_script_refuses_to_overwrite(tmp_path):

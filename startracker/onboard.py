@@ -48,6 +48,7 @@ from startracker.catalog import StarCatalog, load_catalog
 from startracker.filter import AttitudeEKF, DelayedFusion
 from startracker.head import HEAD_CAMERAS, make_head
 from startracker.imu import GYRO_GRADES, Gyro, gyro_preset
+from startracker.kernels import algebra as algebra_kernels
 from startracker.kernels import filter as filter_kernels
 from startracker.kernels import rotations as rk
 from startracker.kernels import sensor as sensor_kernels
@@ -138,6 +139,14 @@ MONITOR_RECOVERY_DELIVERIES = 5  # after an alarm, the estimate is valid again o
 MONITOR_FALSE_ALARM_P = 1e-4
 _MONITOR_Z = 3.7190164854556804  # the standard normal quantile at 1 - MONITOR_FALSE_ALARM_P
 MONITOR_MEAN_CHI2_3 = chi2_3_threshold(MONITOR_FALSE_ALARM_P)
+# Gyro jump monitor: a rigid body's rate is continuous (finite torques) and, within one observed span (one command
+# held), smooth; a step in the readings is a gyro that changed (a bias jump), found by a GLR test over the previous
+# and the current span (:func:`startracker.kernels.filter.gyro_jump_statistic`) at this false-alarm probability per
+# span. The readings' noise is the gyro's white noise plus this floor for what a line does not follow (the
+# gyroscopic torque's slow change of the acceleration; an ideal gyro would otherwise see every curvature as a jump).
+GYRO_JUMP_FALSE_ALARM_P = 1e-7
+GYRO_JUMP_CHI2_3 = chi2_3_threshold(GYRO_JUMP_FALSE_ALARM_P)
+GYRO_JUMP_MODEL_SIGMA_RAD_S = 1e-5
 
 
 def _chi2_quantile_wilson_hilferty(dof: float, z: float) -> float:
@@ -526,6 +535,13 @@ class StarTrackerUnit:
         self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
         self.gyro_period_s = 1.0 / config.gyro_rate_hz
         self._plans: dict[tuple, ExposurePlan] = {}
+        # gyro jump monitor: the noise of one reading (the white noise of the sample average, plus the model floor)
+        self._jump_sigma_rad_s = math.hypot(self.gyro_spec.arw_rad_sqrt_s * math.sqrt(config.gyro_rate_hz),
+                                            GYRO_JUMP_MODEL_SIGMA_RAD_S)
+        self._jump_designs: dict[tuple, tuple] = {}
+        g = int(round(config.frame_period_s * config.gyro_rate_hz))
+        self._allowance_span = g
+        self.bias_allowance_rad_s = self._bias_allowance(g)
         self.gyro: Gyro | None = None
         self.faults = None
         self._clear()
@@ -561,6 +577,12 @@ class StarTrackerUnit:
         self._t_last_delivery = -np.inf
         self._t_saturated = -np.inf  # end of the last gyro interval with a saturated reading
         self._t_accepted = -np.inf  # exposure instant of the last sample the filter accepted
+        self._t_gyro_jump = -np.inf  # start of the last gyro interval where the jump monitor saw a step
+        self._gyro_jumps = 0
+        self._gyro_prev = np.zeros((0, 3))  # the previous span's readings (the jump test's left side)
+        self._gyro_prev_saturated = False
+        self._gyro_correction = np.zeros(3)  # sum of the steps the jump monitor found, rad/s
+        self._gate_rejected = False  # the last delivery had a sample the innovation gate rejected
         self._frame_latency_ms = 0.0
         self._frame_wall_ms = 0.0
 
@@ -607,6 +629,81 @@ class StarTrackerUnit:
         return AttitudeEKF.from_gyro_spec(
             self.gyro_spec, q_body_to_icrs, sigma_attitude_rad=max(3 * sig, 1e-5), t_s=t_s, gate_chi2=30.0,
         )
+
+    def _jump_design(self, n_prev: int, n_cur: int):
+        """The jump test's null fit over ``n_prev`` readings of the previous span and ``n_cur`` of this one: its
+        residual projector (n, n), each candidate step's ``den`` (n,) (0: not a candidate) and the first candidate.
+
+        The null hypothesis is a smooth rate: an offset, a slope, and a change of slope where this span starts (a new
+        command); the readings are evenly spaced, so the design depends on the counts only and is built once."""
+        key = (n_prev, n_cur)
+        design = self._jump_designs.get(key)
+        if design is None:
+            n = n_prev + n_cur
+            tau = np.arange(n, dtype=np.float64) - n_prev + 0.5  # reading mid-times, in readings, from the span start
+            cols = [np.ones(n), tau] + ([np.maximum(tau, 0.0)] if n_prev >= 2 else [])
+            x = np.column_stack(cols)
+            m = np.eye(n) - x @ np.linalg.pinv(x)
+            steps = np.tril(np.ones((n, n)))  # column j: the step from reading j on
+            den = np.einsum("gj,gh,hj->j", steps, m, steps)
+            den[den < 1e-9] = 0.0  # a step the smooth rate can follow: no test there
+            first = n_prev if n_prev >= 2 else 0
+            den[:first] = 0.0
+            design = self._jump_designs[key] = (np.ascontiguousarray(m), den, first)
+        return design
+
+    def _bias_allowance(self, n_span: int) -> float:
+        """The bias change the reported covariance allows for, rad/s: what the jump monitor misses half the time.
+
+        A step δ is found when its statistic, ``|δ|² / σ_δ²``, passes :data:`GYRO_JUMP_CHI2_3`: the monitor finds half
+        the steps of ``D₅₀ = √GYRO_JUMP_CHI2_3 · σ_δ`` (σ_δ of the least favourable reading of a span of ``n_span``)
+        and most larger ones. The estimate's covariance grows by ``(b Δt)²`` with ``b = D₅₀ / √VERDICT_CHI2_3`` over the
+        time Δt since its last accepted sample, so that an unseen step up to ``D₅₀`` keeps the true error within the
+        verdict's own χ² bound."""
+        _, den, _ = self._jump_design(n_span, n_span)
+        den = den[den > 0]
+        # with too few readings per span to test, the difference of two readings is the best a monitor could do
+        sigma_delta = self._jump_sigma_rad_s * (1.0 / math.sqrt(float(np.min(den))) if den.size else math.sqrt(2.0))
+        return math.sqrt(GYRO_JUMP_CHI2_3 / VERDICT_CHI2_3) * sigma_delta
+
+    def _monitor_gyro_jump(self, omega_meas: np.ndarray, times: np.ndarray, saturated: bool) -> np.ndarray:
+        """This span's readings (G, 3), rad/s, with the steps the gyro jump monitor has found taken out.
+
+        The readings, less the correction of the steps found so far, are tested for a step
+        (:func:`startracker.kernels.filter.gyro_jump_statistic`). On a step ``δ̂`` from reading ``g``: the readings from
+        ``g`` on, and all later ones, are corrected by ``δ̂`` (the step's own estimate, σ_δ); the bias covariance
+        opens by ``(3 σ_δ)²`` for the correction's error; the estimate is flagged invalid until a sample exposed after
+        the step is accepted. The fault's end, a step back, is found and undone the same way."""
+        if np.any(self._gyro_correction):
+            omega_meas = omega_meas - self._gyro_correction
+        if len(omega_meas) != self._allowance_span:  # spans as long as the env's control period
+            self._allowance_span = len(omega_meas)
+            self.bias_allowance_rad_s = self._bias_allowance(self._allowance_span)
+        prev, prev_saturated = self._gyro_prev, self._gyro_prev_saturated
+        self._gyro_prev, self._gyro_prev_saturated = omega_meas, saturated
+        if saturated or prev_saturated or (len(prev) == 0 and len(omega_meas) < 3):
+            return omega_meas  # a clipped reading is the saturation monitor's; too few readings for a line and a step
+        y = np.concatenate([prev, omega_meas]) if len(prev) else omega_meas
+        m, den, first = self._jump_design(len(prev), len(omega_meas))
+        delta = np.zeros(3)
+        sigma2 = self._jump_sigma_rad_s**2
+        t_max, j = filter_kernels.gyro_jump_statistic(np.ascontiguousarray(y, dtype=np.float64), m, den, first,
+                                                      sigma2, delta)
+        if j < 0 or t_max <= GYRO_JUMP_CHI2_3:
+            return omega_meas
+        g = j - len(prev)
+        self._gyro_jumps += 1
+        self._t_gyro_jump = float(times[g])  # reading g covers (times[g], times[g + 1]]
+        self._gyro_correction = self._gyro_correction + delta
+        omega_meas = omega_meas.copy()
+        omega_meas[g:] -= delta
+        self._gyro_prev = omega_meas
+        ekf = self.fusion.ekf
+        if ekf is not None:
+            p_bb = ekf.P[3:, 3:] + np.eye(3) * (9.0 * sigma2 / den[j])
+            ekf.set_bias_covariance(p_bb)
+            self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
+        return omega_meas
 
     def _rate_noise(self, omega_meas: np.ndarray, own_gyro: bool):
         """Extra process noise (G, 3), rad²/s, on the gyro axes whose reading is saturated, and the index of the last
@@ -659,6 +756,8 @@ class StarTrackerUnit:
         else:
             omega_meas = omega_gyro
         rate_noise, last_saturated = self._rate_noise(omega_meas, omega_gyro is None)
+        raw_last = omega_meas[-1].copy()
+        omega_meas = self._monitor_gyro_jump(omega_meas, times, rate_noise is not None)
 
         samples = []
         stats = _empty_stats(len(self.heads))
@@ -713,7 +812,7 @@ class StarTrackerUnit:
                 start = end
 
         # the gyro stream is on time; then whatever the processor has finished by the span's end
-        self._omega_gyro = omega_meas[-1].copy()
+        self._omega_gyro = raw_last
         self.fusion.add_gyro(omega_meas, times[1:], rate_noise)
         if rate_noise is not None:
             self._t_saturated = float(times[1 + last_saturated])
@@ -729,17 +828,31 @@ class StarTrackerUnit:
         """:func:`judge_estimate` of :meth:`estimate`, on the filter's own arrays (no copies)."""
         if self.fusion.ekf is None:
             return False, False
-        q, _, P, _, _ = self.fusion.current()
-        nis = sensor_kernels.consistency_nis(q_true.reshape(1, 4), q.reshape(1, 4),
-                                             np.ascontiguousarray(P[:3, :3]).reshape(1, 3, 3))
+        q, _, P, _, t_s = self.fusion.current()
+        cov = self._protected_cov(P, t_s)
+        nis = sensor_kernels.consistency_nis(q_true.reshape(1, 4), q.reshape(1, 4), cov.reshape(1, 3, 3))
         wrong = bool(nis[0] > VERDICT_CHI2_3)
-        return wrong, wrong and self._estimate_valid(P)
+        return wrong, wrong and self._estimate_valid(cov)
+
+    def _protected_cov(self, P, t_s: float) -> np.ndarray:
+        """The estimate's reported attitude covariance (3, 3), rad²: the filter's, plus the drift of a gyro bias change
+        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`)."""
+        cov = P[:3, :3].copy()
+        dt = t_s - self._t_accepted
+        if dt > 0.0:
+            extra = (self.bias_allowance_rad_s * dt) ** 2
+            cov[0, 0] += extra
+            cov[1, 1] += extra
+            cov[2, 2] += extra
+        return cov
 
     def _estimate_valid(self, P) -> bool:
-        """The estimate's validity flag (see :class:`Estimate`)."""
+        """The estimate's validity flag (see :class:`Estimate`); ``P``: its reported covariance (the attitude block
+        first)."""
         sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
         return (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0 and not self._inconsistent
-                and self._t_saturated < self._t_accepted)
+                and not self._gate_rejected and self._t_saturated < self._t_accepted
+                and self._t_gyro_jump < self._t_accepted)
 
     def _deliver(self, t_now: float, stats: dict) -> None:
         """Fuse the frames whose processing is over by ``t_now``, and count their verdicts into ``stats``."""
@@ -767,6 +880,8 @@ class StarTrackerUnit:
         accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
         if accepted.any():
             self._t_accepted = max(self._t_accepted, float(tm[accepted][-1]))
+        # a sample the innovation gate refused (not a stale one) voids validity until a delivery passes whole
+        self._gate_rejected = bool(np.any(~accepted[first:] & np.isfinite(self.fusion.last_nis)))
         n_wrong = int(np.count_nonzero(wrong))
         n_confident = int(np.count_nonzero(wrong & accepted))
         self._n_wrong += n_wrong
@@ -807,7 +922,12 @@ class StarTrackerUnit:
             self._monitor_slot)
         self._monitor_slot = (self._monitor_slot + 1) % MONITOR_DELIVERIES
         self._monitor_filled += 1
-        if total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3:
+        # the delivery alone: its samples share the frame's errors (a time tag, a bias since the last frame), which
+        # a window of ten deliveries would dilute
+        z_sum = fusion.last_innovation_rad.sum(axis=0)
+        delivery_chi2 = algebra_kernels.mahalanobis3(fusion.last_innovation_cov_rad2.sum(axis=0), *z_sum.tolist())
+        if (total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3
+                or delivery_chi2 > MONITOR_MEAN_CHI2_3):
             ekf = fusion.ekf
             p_bb = np.diag(ekf.P[3:, 3:])
             ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))
@@ -1004,8 +1124,9 @@ class StarTrackerUnit:
         if self.fusion.ekf is None:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
         q, _, P, omega, t_s = self.fusion.current()
-        sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
-        return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(P), P[:3, :3].copy())
+        cov = self._protected_cov(P, t_s)
+        sig = math.sqrt(max(cov[0, 0], cov[1, 1], cov[2, 2]))
+        return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(cov), cov)
 
     def render_last_frame(self) -> np.ndarray | None:
         """RGB uint8 image (rows, cols, 3) of the last frame of the first head, detections boxed; None before a

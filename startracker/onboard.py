@@ -147,6 +147,15 @@ MONITOR_MEAN_CHI2_3 = chi2_3_threshold(MONITOR_FALSE_ALARM_P)
 GYRO_JUMP_FALSE_ALARM_P = 1e-7
 GYRO_JUMP_CHI2_3 = chi2_3_threshold(GYRO_JUMP_FALSE_ALARM_P)
 GYRO_JUMP_MODEL_SIGMA_RAD_S = 1e-5
+# The non-centrality λ at which the jump monitor's χ²(3) statistic passes its threshold with probability 0.99 (a step
+# of √λ σ_δ is found 99 % of the time; scipy.stats.ncx2, tested).
+GYRO_JUMP_NONCENTRALITY_99 = 66.14439045439
+# The bias change the reported covariance allows for, per σ_δ (see StarTrackerUnit._bias_allowance): a step the monitor
+# finds 99 % of the time, unseen, leaves an error at the verdict's own χ² bound; smaller steps stay inside it.
+BIAS_ALLOWANCE_FACTOR = math.sqrt(GYRO_JUMP_NONCENTRALITY_99 / VERDICT_CHI2_3)
+# The innovation monitor's test of one delivery alone (its samples share the frame's errors: a time tag, a bias since
+# the last frame): the mean of its innovations against χ²(3) at the monitor's false-alarm probability.
+MONITOR_DELIVERY_CHI2_3 = MONITOR_MEAN_CHI2_3
 
 
 def _chi2_quantile_wilson_hilferty(dof: float, z: float) -> float:
@@ -582,6 +591,7 @@ class StarTrackerUnit:
         self._gyro_prev = np.zeros((0, 3))  # the previous span's readings (the jump test's left side)
         self._gyro_prev_saturated = False
         self._gyro_correction = np.zeros(3)  # sum of the steps the jump monitor found, rad/s
+        self._bias_before_saturation = None  # the bias estimate when the gyro last began to saturate
         self._gate_rejected = False  # the last delivery had a sample the innovation gate rejected
         self._frame_latency_ms = 0.0
         self._frame_wall_ms = 0.0
@@ -653,18 +663,18 @@ class StarTrackerUnit:
         return design
 
     def _bias_allowance(self, n_span: int) -> float:
-        """The bias change the reported covariance allows for, rad/s: what the jump monitor misses half the time.
+        """The bias change the reported covariance allows for, rad/s: the largest step the jump monitor may miss.
 
-        A step δ is found when its statistic, ``|δ|² / σ_δ²``, passes :data:`GYRO_JUMP_CHI2_3`: the monitor finds half
-        the steps of ``D₅₀ = √GYRO_JUMP_CHI2_3 · σ_δ`` (σ_δ of the least favourable reading of a span of ``n_span``)
-        and most larger ones. The estimate's covariance grows by ``(b Δt)²`` with ``b = D₅₀ / √VERDICT_CHI2_3`` over the
-        time Δt since its last accepted sample, so that an unseen step up to ``D₅₀`` keeps the true error within the
-        verdict's own χ² bound."""
+        A step δ is found when its statistic (non-central χ²(3), ``λ = |δ|² / σ_δ²``) passes :data:`GYRO_JUMP_CHI2_3`:
+        the monitor finds 99 % of the steps of ``D₉₉ = √GYRO_JUMP_NONCENTRALITY_99 · σ_δ`` (σ_δ of the least favourable
+        reading of a span of ``n_span``) and more of larger ones. The estimate's covariance grows by ``(b Δt)²`` with
+        ``b = D₉₉ / √VERDICT_CHI2_3`` over the time Δt since its last accepted sample, so that an unseen step up to
+        ``D₉₉`` keeps the true error within the verdict's own χ² bound (a protection level in covariance form)."""
         _, den, _ = self._jump_design(n_span, n_span)
         den = den[den > 0]
         # with too few readings per span to test, the difference of two readings is the best a monitor could do
         sigma_delta = self._jump_sigma_rad_s * (1.0 / math.sqrt(float(np.min(den))) if den.size else math.sqrt(2.0))
-        return math.sqrt(GYRO_JUMP_CHI2_3 / VERDICT_CHI2_3) * sigma_delta
+        return BIAS_ALLOWANCE_FACTOR * sigma_delta
 
     def _monitor_gyro_jump(self, omega_meas: np.ndarray, times: np.ndarray, saturated: bool) -> np.ndarray:
         """This span's readings (G, 3), rad/s, with the steps the gyro jump monitor has found taken out.
@@ -672,7 +682,7 @@ class StarTrackerUnit:
         The readings, less the correction of the steps found so far, are tested for a step
         (:func:`startracker.kernels.filter.gyro_jump_statistic`). On a step ``δ̂`` from reading ``g``: the readings from
         ``g`` on, and all later ones, are corrected by ``δ̂`` (the step's own estimate, σ_δ); the bias covariance
-        opens by ``(3 σ_δ)²`` for the correction's error; the estimate is flagged invalid until a sample exposed after
+        opens by ``(|δ̂| + 3 σ_δ)²`` per axis for the correction's error; the estimate is flagged invalid until a sample exposed after
         the step is accepted. The fault's end, a step back, is found and undone the same way."""
         if np.any(self._gyro_correction):
             omega_meas = omega_meas - self._gyro_correction
@@ -700,10 +710,35 @@ class StarTrackerUnit:
         self._gyro_prev = omega_meas
         ekf = self.fusion.ekf
         if ekf is not None:
-            p_bb = ekf.P[3:, 3:] + np.eye(3) * (9.0 * sigma2 / den[j])
+            # the correction's error is σ_δ for a true step, δ̂ itself for a false alarm: cover both
+            reach = np.abs(delta) + 3.0 * math.sqrt(sigma2 / den[j])
+            p_bb = ekf.P[3:, 3:] + np.diag(reach**2)
             ekf.set_bias_covariance(p_bb)
             self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
         return omega_meas
+
+    def _track_saturation_bias(self, saturated: bool, was_saturated: bool) -> None:
+        """Discard what the filter learned about the bias from saturated readings.
+
+        While a gyro axis is saturated the filter explains the star tracker's pull partly by a bias, and its bias
+        estimate wanders by up to the unknown rate while its covariance shrinks. At the first span with a saturated
+        reading the bias estimate is saved; at the first span after the last one it is restored, its covariance
+        opened as at a restart, and the estimate stays invalid until the innovation monitor has seen
+        :data:`MONITOR_RECOVERY_DELIVERIES` deliveries without alarm."""
+        ekf = self.fusion.ekf
+        if ekf is None:
+            return
+        if saturated and not was_saturated:
+            self._bias_before_saturation = ekf.bias_rad_s.copy()
+        elif was_saturated and not saturated:
+            if self._bias_before_saturation is not None:
+                ekf.bias_rad_s = self._bias_before_saturation
+                self._bias_before_saturation = None
+            p_bb = np.diag(ekf.P[3:, 3:])
+            ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))
+            self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
+            self._inconsistent = True
+            self._monitor_filled = 0
 
     def _rate_noise(self, omega_meas: np.ndarray, own_gyro: bool):
         """Extra process noise (G, 3), rad²/s, on the gyro axes whose reading is saturated, and the index of the last
@@ -757,6 +792,7 @@ class StarTrackerUnit:
             omega_meas = omega_gyro
         rate_noise, last_saturated = self._rate_noise(omega_meas, omega_gyro is None)
         raw_last = omega_meas[-1].copy()
+        self._track_saturation_bias(rate_noise is not None, self._gyro_prev_saturated)
         omega_meas = self._monitor_gyro_jump(omega_meas, times, rate_noise is not None)
 
         samples = []
@@ -927,7 +963,7 @@ class StarTrackerUnit:
         z_sum = fusion.last_innovation_rad.sum(axis=0)
         delivery_chi2 = algebra_kernels.mahalanobis3(fusion.last_innovation_cov_rad2.sum(axis=0), *z_sum.tolist())
         if (total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3
-                or delivery_chi2 > MONITOR_MEAN_CHI2_3):
+                or delivery_chi2 > MONITOR_DELIVERY_CHI2_3):
             ekf = fusion.ekf
             p_bb = np.diag(ekf.P[3:, 3:])
             ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))
@@ -959,6 +995,16 @@ class StarTrackerUnit:
     def n_confidently_wrong_estimates_total(self) -> int:
         """Spans since :meth:`reset` that ended with a wrong estimate flagged valid."""
         return self._n_confidently_wrong_estimates
+
+    @property
+    def gyro_jumps_total(self) -> int:
+        """Steps in the gyro readings the jump monitor found since :meth:`reset`."""
+        return self._gyro_jumps
+
+    @property
+    def gyro_correction_rad_s(self) -> np.ndarray:
+        """The sum of the steps found since :meth:`reset`, (3,) rad/s: taken out of every reading after them."""
+        return self._gyro_correction.copy()
 
     @property
     def reacquisition_times_s(self) -> list[float]:

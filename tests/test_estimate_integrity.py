@@ -143,3 +143,4 @@ def test_an_unseen_small_step_stays_within_the_reported_covariance(monkeypatch):
     monkeypatch.setattr(onboard, "BIAS_ALLOWANCE_FACTOR", 0.0)
     infos_off, _, _ = run("startracker/AgileSlew-v0", small, steps=100, slew=True)
     assert infos_off[-1]["n_confidently_wrong_estimates_total"] > 0
+

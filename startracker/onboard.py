@@ -594,7 +594,7 @@ class StarTrackerUnit:
         self._gyro_prev = np.zeros((0, 3))  # the previous span's readings (the jump test's left side)
         self._gyro_prev_saturated = False
         self._gyro_correction = np.zeros(3)  # sum of the steps the jump monitor found, rad/s
-        self._bias_before_saturation = None  # the bias estimate when the gyro last began to saturate
+        self._correction_before_jump = None  # the correction before a step found in the last span
         self._frame_latency_ms = 0.0
         self._frame_wall_ms = 0.0
 
@@ -686,6 +686,7 @@ class StarTrackerUnit:
         ``g`` on, and all later ones, are corrected by ``δ̂`` (the step's own estimate, σ_δ); the bias covariance
         opens by ``(|δ̂| + 3 σ_δ)²`` per axis for the correction's error; the estimate is flagged invalid until a sample exposed after
         the step is accepted. The fault's end, a step back, is found and undone the same way."""
+        self._correction_before_jump = None
         if np.any(self._gyro_correction):
             omega_meas = omega_meas - self._gyro_correction
         if len(omega_meas) != self._allowance_span:  # spans as long as the env's control period
@@ -706,6 +707,7 @@ class StarTrackerUnit:
         g = j - len(prev)
         self._gyro_jumps += 1
         self._t_gyro_jump = float(times[g])  # reading g covers (times[g], times[g + 1]]
+        self._correction_before_jump = self._gyro_correction
         self._gyro_correction = self._gyro_correction + delta
         omega_meas = omega_meas.copy()
         omega_meas[g:] -= delta
@@ -719,28 +721,12 @@ class StarTrackerUnit:
             self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
         return omega_meas
 
-    def _track_saturation_bias(self, saturated: bool, was_saturated: bool) -> None:
-        """Discard what the filter learned about the bias from saturated readings.
-
-        While a gyro axis is saturated the filter explains the star tracker's pull partly by a bias, and its bias
-        estimate wanders by up to the unknown rate while its covariance shrinks. At the first span with a saturated
-        reading the bias estimate is saved; at the first span after the last one it is restored, its covariance
-        opened as at a restart, and the estimate stays invalid until the innovation monitor has seen
-        :data:`MONITOR_RECOVERY_DELIVERIES` deliveries without alarm."""
-        ekf = self.fusion.ekf
-        if ekf is None:
-            return
-        if saturated and not was_saturated:
-            self._bias_before_saturation = ekf.bias_rad_s.copy()
-        elif was_saturated and not saturated:
-            if self._bias_before_saturation is not None:
-                ekf.bias_rad_s = self._bias_before_saturation
-                self._bias_before_saturation = None
-            p_bb = np.diag(ekf.P[3:, 3:])
-            ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))
-            self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
-            self._inconsistent = True
-            self._monitor_filled = 0
+    def _undo_clip_onset_step(self, saturated: bool, was_saturated: bool) -> None:
+        """A step the jump monitor found in the span just before the first saturated one is the clip's onset (its
+        first clipped reading does not repeat yet, so the saturation monitor flags the span after), not a bias: its
+        correction is undone."""
+        if saturated and not was_saturated and self._correction_before_jump is not None:
+            self._gyro_correction = self._correction_before_jump
 
     def _rate_noise(self, omega_meas: np.ndarray, own_gyro: bool):
         """Extra process noise (G, 3), rad²/s, on the gyro axes whose reading is saturated, and the index of the last
@@ -794,7 +780,7 @@ class StarTrackerUnit:
             omega_meas = omega_gyro
         rate_noise, last_saturated = self._rate_noise(omega_meas, omega_gyro is None)
         raw_last = omega_meas[-1].copy()
-        self._track_saturation_bias(rate_noise is not None, self._gyro_prev_saturated)
+        self._undo_clip_onset_step(rate_noise is not None, self._gyro_prev_saturated)
         omega_meas = self._monitor_gyro_jump(omega_meas, times, rate_noise is not None)
 
         samples = []

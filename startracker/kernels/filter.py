@@ -13,8 +13,12 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
   :meth:`startracker.filter.AttitudeEKF.process` (its extra ``rate_noise`` is the process noise of saturated gyro
   axes; it also returns each sample's innovation, its covariance and NIS);
 - :func:`saturated_rate_noise`: which gyro readings are saturated, and the process noise they get;
-- :func:`innovation_window`: the innovation monitor's window statistics (spread and mean of the innovations).
+- :func:`innovation_window`: the innovation monitor's window statistics (spread and mean of the innovations);
 - :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped).
+
+The module is over 600 lines because it is one room: what the onboard filter computes, the fusion of a frame and
+the statistics of the monitors that judge its inputs (innovations, saturated readings, gyro steps), compiled
+together; the innovation window reuses the frame's 3 × 3 solve.
 """
 
 from __future__ import annotations

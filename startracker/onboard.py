@@ -23,7 +23,8 @@ Timeline of one observed span ``[t0, t1]`` (:meth:`StarTrackerUnit.observe`):
    (:func:`judge_samples`, :func:`judge_estimate`). The estimate monitors itself: a saturated gyro reading
    inflates its process noise and voids its validity until a later sample is accepted; a step in the gyro readings
    (a bias jump) is taken out of them and voids it likewise; innovations inconsistent over the last deliveries
-   void it; samples rejected frame after frame void it and then restart the filter from the tracker. Its reported covariance allows for a bias change the jump monitor could miss.
+   void it; samples rejected frame after frame void it and then restart the filter from the tracker. Its reported
+   covariance allows for a bias change the jump monitor could miss.
 
 Fault hooks: ``faults`` (e.g. ``envs.faults.FaultSchedule``) is any object, true when it holds faults, with
 ``frame_dropped(t)``, ``sun_direction_world(t, boresight_icrs, rng)`` (unit vector or None),
@@ -684,8 +685,8 @@ class StarTrackerUnit:
         The readings, less the correction of the steps found so far, are tested for a step
         (:func:`startracker.kernels.filter.gyro_jump_statistic`). On a step ``δ̂`` from reading ``g``: the readings from
         ``g`` on, and all later ones, are corrected by ``δ̂`` (the step's own estimate, σ_δ); the bias covariance
-        opens by ``(|δ̂| + 3 σ_δ)²`` per axis for the correction's error; the estimate is flagged invalid until a sample exposed after
-        the step is accepted. The fault's end, a step back, is found and undone the same way."""
+        opens by ``(|δ̂| + 3 σ_δ)²`` per axis for the correction's error; the estimate is flagged invalid until a
+        sample exposed after the step is accepted. The fault's end, a step back, is found and undone the same way."""
         self._correction_before_jump = None
         if np.any(self._gyro_correction):
             omega_meas = omega_meas - self._gyro_correction

@@ -122,7 +122,8 @@ def test_gyro_jump_monitor_finds_the_step_and_its_end(monkeypatch):
     after = t > 4.2
     assert jumps == 2
     sigma_delta = 1.3 * 0.125 / 60.0 * 10.0  # °/s: σ_δ ≤ 1.3 σ of one reading (ARW 0.125 °/√h at 100 Hz)
-    np.testing.assert_allclose(np.degrees(np.linalg.norm(corr[during], axis=1)), 0.5, atol=4 * math.sqrt(3) * sigma_delta)
+    step_found_deg_s = np.degrees(np.linalg.norm(corr[during], axis=1))
+    np.testing.assert_allclose(step_found_deg_s, 0.5, atol=4 * math.sqrt(3) * sigma_delta)
     assert np.all(np.degrees(np.linalg.norm(corr[after], axis=1)) < 4 * math.sqrt(6) * sigma_delta)
     assert infos[-1]["n_confidently_wrong_estimates_total"] == 0
     assert not any(i["estimate_confidently_wrong"] for i in infos)

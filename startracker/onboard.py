@@ -21,8 +21,10 @@ Timeline of one observed span ``[t0, t1]`` (:meth:`StarTrackerUnit.observe`):
 4. Verdicts against the truth: each delivered sample and the estimate at the span's end are *wrong* when their
    error fails the χ²(3) test on their own covariance, *confidently wrong* when they are also flagged valid
    (:func:`judge_samples`, :func:`judge_estimate`). The estimate monitors itself: a saturated gyro reading
-   inflates its process noise and voids its validity until a later sample is accepted; samples rejected frame
-   after frame void it and then restart it from the tracker.
+   inflates its process noise and voids its validity until a later sample is accepted; a step in the gyro readings
+   (a bias jump) is taken out of them and voids it likewise; innovations inconsistent over the last deliveries
+   void it; samples rejected frame after frame void it and then restart the filter from the tracker. Its reported
+   covariance allows for a bias change the jump monitor could miss.
 
 Fault hooks: ``faults`` (e.g. ``envs.faults.FaultSchedule``) is any object, true when it holds faults, with
 ``frame_dropped(t)``, ``sun_direction_world(t, boresight_icrs, rng)`` (unit vector or None),
@@ -138,6 +140,20 @@ MONITOR_RECOVERY_DELIVERIES = 5  # after an alarm, the estimate is valid again o
 MONITOR_FALSE_ALARM_P = 1e-4
 _MONITOR_Z = 3.7190164854556804  # the standard normal quantile at 1 - MONITOR_FALSE_ALARM_P
 MONITOR_MEAN_CHI2_3 = chi2_3_threshold(MONITOR_FALSE_ALARM_P)
+# Gyro jump monitor: a rigid body's rate is continuous (finite torques) and, within one observed span (one command
+# held), smooth; a step in the readings is a gyro that changed (a bias jump), found by a GLR test over the previous
+# and the current span (:func:`startracker.kernels.filter.gyro_jump_statistic`) at this false-alarm probability per
+# span. The readings' noise is the gyro's white noise plus this floor for what a line does not follow (the
+# gyroscopic torque's slow change of the acceleration; an ideal gyro would otherwise see every curvature as a jump).
+GYRO_JUMP_FALSE_ALARM_P = 1e-7
+GYRO_JUMP_CHI2_3 = chi2_3_threshold(GYRO_JUMP_FALSE_ALARM_P)
+GYRO_JUMP_MODEL_SIGMA_RAD_S = 1e-5
+# The non-centrality λ at which the jump monitor's χ²(3) statistic passes its threshold with probability 0.99 (a step
+# of √λ σ_δ is found 99 % of the time; scipy.stats.ncx2, tested).
+GYRO_JUMP_NONCENTRALITY_99 = 66.14439045439
+# The bias change the reported covariance allows for, per σ_δ (see StarTrackerUnit._bias_allowance): a step the monitor
+# finds 99 % of the time, unseen, leaves an error at the verdict's own χ² bound; smaller steps stay inside it.
+BIAS_ALLOWANCE_FACTOR = math.sqrt(GYRO_JUMP_NONCENTRALITY_99 / VERDICT_CHI2_3)
 
 
 def _chi2_quantile_wilson_hilferty(dof: float, z: float) -> float:
@@ -321,12 +337,15 @@ class Estimate:
     omega_body : ndarray, shape (3,)
         Estimated body rate, rad/s (the raw gyro rate before the first fix).
     attitude_sigma_rad : float
-        Largest 1σ attitude uncertainty, rad (π before the first fix).
+        Largest 1σ attitude uncertainty of ``attitude_cov_rad2``, rad (π before the first fix).
     valid : bool
         The filter vouches for the estimate: it has a fix, its largest 1σ is within 1°, no saturated gyro reading
-        came after its last accepted sample, and the star tracker's samples are not being rejected.
+        and no gyro step came after its last accepted sample, the star tracker's samples are not being rejected, and
+        the innovation monitor is quiet.
     attitude_cov_rad2 : ndarray, shape (3, 3), or None
-        Body-frame attitude covariance, rad²; None before the first fix.
+        Body-frame attitude covariance, rad², as reported: the filter's, plus the allowance for a gyro bias change
+        the jump monitor could miss since the last accepted sample (:attr:`StarTrackerUnit.bias_allowance_rad_s`);
+        None before the first fix.
     """
 
     q_body_to_icrs: np.ndarray
@@ -491,6 +510,9 @@ class StarTrackerUnit:
         Timestamp error injected into the last frame (fault hooks), s.
     last_samples : list of startracker.sensor.AttitudeSample
         The star tracker's samples over the last :meth:`observe` span.
+    bias_allowance_rad_s : float
+        The gyro bias change the reported covariance allows for, rad/s (:meth:`estimate`): a step the gyro jump
+        monitor finds 99 % of the time, unseen, stays within the verdict's χ² bound.
     """
 
     def __init__(self, config: UnitConfig | None = None, catalog: StarCatalog | None = None):
@@ -527,6 +549,13 @@ class StarTrackerUnit:
         self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
         self.gyro_period_s = 1.0 / config.gyro_rate_hz
         self._plans: dict[tuple, ExposurePlan] = {}
+        # gyro jump monitor: the noise of one reading (the white noise of the sample average, plus the model floor)
+        self._jump_sigma_rad_s = math.hypot(self.gyro_spec.arw_rad_sqrt_s * math.sqrt(config.gyro_rate_hz),
+                                            GYRO_JUMP_MODEL_SIGMA_RAD_S)
+        self._jump_designs: dict[tuple, tuple] = {}
+        g = int(round(config.frame_period_s * config.gyro_rate_hz))
+        self._allowance_span = g
+        self.bias_allowance_rad_s = self._bias_allowance(g)
         self.gyro: Gyro | None = None
         self.faults = None
         self._clear()
@@ -562,6 +591,12 @@ class StarTrackerUnit:
         self._t_last_delivery = -np.inf
         self._t_saturated = -np.inf  # end of the last gyro interval with a saturated reading
         self._t_accepted = -np.inf  # exposure instant of the last sample the filter accepted
+        self._t_gyro_jump = -np.inf  # start of the last gyro interval where the jump monitor saw a step
+        self._gyro_jumps = 0
+        self._gyro_prev = np.zeros((0, 3))  # the previous span's readings (the jump test's left side)
+        self._gyro_prev_saturated = False
+        self._gyro_correction = np.zeros(3)  # sum of the steps the jump monitor found, rad/s
+        self._correction_before_jump = None  # the correction before a step found in the last span
         self._frame_latency_ms = 0.0
         self._frame_wall_ms = 0.0
 
@@ -608,6 +643,92 @@ class StarTrackerUnit:
         return AttitudeEKF.from_gyro_spec(
             self.gyro_spec, q_body_to_icrs, sigma_attitude_rad=max(3 * sig, 1e-5), t_s=t_s, gate_chi2=30.0,
         )
+
+    def _jump_design(self, n_prev: int, n_cur: int):
+        """The jump test's null fit over ``n_prev`` readings of the previous span and ``n_cur`` of this one: its
+        residual projector (n, n), each candidate step's ``den`` (n,) (0: not a candidate) and the first candidate.
+
+        The null hypothesis is a smooth rate: an offset, a slope, and a change of slope where this span starts (a new
+        command); the readings are evenly spaced, so the design depends on the counts only and is built once."""
+        key = (n_prev, n_cur)
+        design = self._jump_designs.get(key)
+        if design is None:
+            n = n_prev + n_cur
+            tau = np.arange(n, dtype=np.float64) - n_prev + 0.5  # reading mid-times, in readings, from the span start
+            cols = [np.ones(n), tau] + ([np.maximum(tau, 0.0)] if n_prev >= 2 else [])
+            x = np.column_stack(cols)
+            m = np.eye(n) - x @ np.linalg.pinv(x)
+            steps = np.tril(np.ones((n, n)))  # column j: the step from reading j on
+            den = np.einsum("gj,gh,hj->j", steps, m, steps)
+            den[den < 1e-9] = 0.0  # a step the smooth rate can follow: no test there
+            first = n_prev if n_prev >= 2 else 0
+            den[:first] = 0.0
+            design = self._jump_designs[key] = (np.ascontiguousarray(m), den, first)
+        return design
+
+    def _bias_allowance(self, n_span: int) -> float:
+        """The bias change the reported covariance allows for, rad/s: the largest step the jump monitor may miss.
+
+        A step δ is found when its statistic (non-central χ²(3), ``λ = |δ|² / σ_δ²``) passes :data:`GYRO_JUMP_CHI2_3`:
+        the monitor finds 99 % of the steps of ``D₉₉ = √GYRO_JUMP_NONCENTRALITY_99 · σ_δ`` (σ_δ of the least favourable
+        reading of a span of ``n_span``) and more of larger ones. The estimate's covariance grows by ``(b Δt)²`` with
+        ``b = D₉₉ / √VERDICT_CHI2_3`` over the time Δt since its last accepted sample, so that an unseen step up to
+        ``D₉₉`` keeps the true error within the verdict's own χ² bound (a protection level in covariance form)."""
+        _, den, _ = self._jump_design(n_span, n_span)
+        den = den[den > 0]
+        # with too few readings per span to test, the difference of two readings is the best a monitor could do
+        sigma_delta = self._jump_sigma_rad_s * (1.0 / math.sqrt(float(np.min(den))) if den.size else math.sqrt(2.0))
+        return BIAS_ALLOWANCE_FACTOR * sigma_delta
+
+    def _monitor_gyro_jump(self, omega_meas: np.ndarray, times: np.ndarray, saturated: bool) -> np.ndarray:
+        """This span's readings (G, 3), rad/s, with the steps the gyro jump monitor has found taken out.
+
+        The readings, less the correction of the steps found so far, are tested for a step
+        (:func:`startracker.kernels.filter.gyro_jump_statistic`). On a step ``δ̂`` from reading ``g``: the readings from
+        ``g`` on, and all later ones, are corrected by ``δ̂`` (the step's own estimate, σ_δ); the bias covariance
+        opens by ``(|δ̂| + 3 σ_δ)²`` per axis for the correction's error; the estimate is flagged invalid until a
+        sample exposed after the step is accepted. The fault's end, a step back, is found and undone the same way."""
+        self._correction_before_jump = None
+        if np.any(self._gyro_correction):
+            omega_meas = omega_meas - self._gyro_correction
+        if len(omega_meas) != self._allowance_span:  # spans as long as the env's control period
+            self._allowance_span = len(omega_meas)
+            self.bias_allowance_rad_s = self._bias_allowance(self._allowance_span)
+        prev, prev_saturated = self._gyro_prev, self._gyro_prev_saturated
+        self._gyro_prev, self._gyro_prev_saturated = omega_meas, saturated
+        if saturated or prev_saturated or (len(prev) == 0 and len(omega_meas) < 3):
+            return omega_meas  # a clipped reading is the saturation monitor's; too few readings for a line and a step
+        y = np.concatenate([prev, omega_meas]) if len(prev) else omega_meas
+        m, den, first = self._jump_design(len(prev), len(omega_meas))
+        delta = np.zeros(3)
+        sigma2 = self._jump_sigma_rad_s**2
+        t_max, j = filter_kernels.gyro_jump_statistic(np.ascontiguousarray(y, dtype=np.float64), m, den, first,
+                                                      sigma2, delta)
+        if j < 0 or t_max <= GYRO_JUMP_CHI2_3:
+            return omega_meas
+        g = j - len(prev)
+        self._gyro_jumps += 1
+        self._t_gyro_jump = float(times[g])  # reading g covers (times[g], times[g + 1]]
+        self._correction_before_jump = self._gyro_correction
+        self._gyro_correction = self._gyro_correction + delta
+        omega_meas = omega_meas.copy()
+        omega_meas[g:] -= delta
+        self._gyro_prev = omega_meas
+        ekf = self.fusion.ekf
+        if ekf is not None:
+            # the correction's error is σ_δ for a true step, δ̂ itself for a false alarm: cover both
+            reach = np.abs(delta) + 3.0 * math.sqrt(sigma2 / den[j])
+            p_bb = ekf.P[3:, 3:] + np.diag(reach**2)
+            ekf.set_bias_covariance(p_bb)
+            self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
+        return omega_meas
+
+    def _undo_clip_onset_step(self, saturated: bool, was_saturated: bool) -> None:
+        """A step the jump monitor found in the span just before the first saturated one is the clip's onset (its
+        first clipped reading does not repeat yet, so the saturation monitor flags the span after), not a bias: its
+        correction is undone."""
+        if saturated and not was_saturated and self._correction_before_jump is not None:
+            self._gyro_correction = self._correction_before_jump
 
     def _rate_noise(self, omega_meas: np.ndarray, own_gyro: bool):
         """Extra process noise (G, 3), rad²/s, on the gyro axes whose reading is saturated, and the index of the last
@@ -660,6 +781,9 @@ class StarTrackerUnit:
         else:
             omega_meas = omega_gyro
         rate_noise, last_saturated = self._rate_noise(omega_meas, omega_gyro is None)
+        raw_last = omega_meas[-1].copy()
+        self._undo_clip_onset_step(rate_noise is not None, self._gyro_prev_saturated)
+        omega_meas = self._monitor_gyro_jump(omega_meas, times, rate_noise is not None)
 
         samples = []
         stats = _empty_stats(len(self.heads))
@@ -719,7 +843,7 @@ class StarTrackerUnit:
                 start = end
 
         # the gyro stream is on time; then whatever the processor has finished by the span's end
-        self._omega_gyro = omega_meas[-1].copy()
+        self._omega_gyro = raw_last
         self.fusion.add_gyro(omega_meas, times[1:], rate_noise)
         if rate_noise is not None:
             self._t_saturated = float(times[1 + last_saturated])
@@ -735,17 +859,31 @@ class StarTrackerUnit:
         """:func:`judge_estimate` of :meth:`estimate`, on the filter's own arrays (no copies)."""
         if self.fusion.ekf is None:
             return False, False
-        q, _, P, _, _ = self.fusion.current()
-        nis = sensor_kernels.consistency_nis(q_true.reshape(1, 4), q.reshape(1, 4),
-                                             np.ascontiguousarray(P[:3, :3]).reshape(1, 3, 3))
+        q, _, P, _, t_s = self.fusion.current()
+        cov = self._protected_cov(P, t_s)
+        nis = sensor_kernels.consistency_nis(q_true.reshape(1, 4), q.reshape(1, 4), cov.reshape(1, 3, 3))
         wrong = bool(nis[0] > VERDICT_CHI2_3)
-        return wrong, wrong and self._estimate_valid(P)
+        return wrong, wrong and self._estimate_valid(cov)
+
+    def _protected_cov(self, P, t_s: float) -> np.ndarray:
+        """The estimate's reported attitude covariance (3, 3), rad²: the filter's, plus the drift of a gyro bias change
+        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`)."""
+        cov = P[:3, :3].copy()
+        dt = t_s - self._t_accepted
+        if dt > 0.0:
+            extra = (self.bias_allowance_rad_s * dt) ** 2
+            cov[0, 0] += extra
+            cov[1, 1] += extra
+            cov[2, 2] += extra
+        return cov
 
     def _estimate_valid(self, P) -> bool:
-        """The estimate's validity flag (see :class:`Estimate`)."""
+        """The estimate's validity flag (see :class:`Estimate`); ``P``: its reported covariance (the attitude block
+        first)."""
         sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
         return (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0 and not self._inconsistent
-                and self._t_saturated < self._t_accepted)
+                and self._t_saturated < self._t_accepted
+                and self._t_gyro_jump < self._t_accepted)
 
     def _deliver(self, t_now: float, stats: dict) -> None:
         """Fuse the frames whose processing is over by ``t_now``, and count their verdicts into ``stats``."""
@@ -845,6 +983,16 @@ class StarTrackerUnit:
     def n_confidently_wrong_estimates_total(self) -> int:
         """Spans since :meth:`reset` that ended with a wrong estimate flagged valid."""
         return self._n_confidently_wrong_estimates
+
+    @property
+    def gyro_jumps_total(self) -> int:
+        """Steps in the gyro readings the jump monitor found since :meth:`reset`."""
+        return self._gyro_jumps
+
+    @property
+    def gyro_correction_rad_s(self) -> np.ndarray:
+        """The sum of the steps found since :meth:`reset`, (3,) rad/s: taken out of every reading after them."""
+        return self._gyro_correction.copy()
 
     @property
     def reacquisition_times_s(self) -> list[float]:
@@ -1016,8 +1164,9 @@ class StarTrackerUnit:
         if self.fusion.ekf is None:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
         q, _, P, omega, t_s = self.fusion.current()
-        sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
-        return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(P), P[:3, :3].copy())
+        cov = self._protected_cov(P, t_s)
+        sig = math.sqrt(max(cov[0, 0], cov[1, 1], cov[2, 2]))
+        return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(cov), cov)
 
     def render_last_frame(self) -> np.ndarray | None:
         """RGB uint8 image (rows, cols, 3) of the last frame of the first head, detections boxed; None before a

@@ -13,7 +13,12 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
   :meth:`startracker.filter.AttitudeEKF.process` (its extra ``rate_noise`` is the process noise of saturated gyro
   axes; it also returns each sample's innovation, its covariance and NIS);
 - :func:`saturated_rate_noise`: which gyro readings are saturated, and the process noise they get;
-- :func:`innovation_window`: the innovation monitor's window statistics (spread and mean of the innovations).
+- :func:`innovation_window`: the innovation monitor's window statistics (spread and mean of the innovations);
+- :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped).
+
+The module is over 600 lines because it is one room: what the onboard filter computes, the fusion of a frame and
+the statistics of the monitors that judge its inputs (innovations, saturated readings, gyro steps), compiled
+together; the innovation window reuses the frame's 3 × 3 solve.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
-           "innovation_window", "saturated_rate_noise"]
+           "innovation_window", "saturated_rate_noise", "gyro_jump_statistic"]
 
 
 @njit(cache=True)
@@ -596,3 +601,65 @@ def saturated_rate_noise(omega, omega_prev, limit_rad_s, check_repeat, noise_rad
             else:
                 out[g, a] = 0.0
     return last
+
+
+@njit(cache=True)
+def gyro_jump_statistic(y, m, den, first, sigma2, delta_out):
+    """Generalised likelihood ratio test for a step in a window of gyro readings (a bias that jumped).
+
+    Under the null hypothesis the readings are a smooth rate (the columns of the design behind ``m``: offset, slope,
+    and a slope change at the previous span's end, where a new torque command may act) plus white noise of variance
+    ``sigma2`` per axis. The alternative adds a step ``δ`` (3,) from sample ``j`` on. With ``r = m y`` the residual of
+    the null fit, the step's estimate is ``δ̂_j = Σ_{g≥j} r_g / den_j`` and its statistic
+    ``T_j = |Σ_{g≥j} r_g|² / (den_j σ²)``, χ²(3) for each ``j`` when no step occurred.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n, 3)
+        Gyro readings of the window, rad/s, in time order.
+    m : ndarray, shape (n, n)
+        Residual projector ``I - X (XᵀX)⁻¹ Xᵀ`` of the null design ``X``.
+    den : ndarray, shape (n,)
+        ``s_jᵀ m s_j`` with ``s_j`` the step from sample ``j`` (0 where ``j`` is not a candidate).
+    first : int
+        First candidate sample; candidates are ``first .. n-1`` with ``den_j > 0``.
+    sigma2 : float
+        Per-axis variance of one reading's noise, (rad/s)².
+    delta_out : ndarray, shape (3,)
+        Output: ``δ̂`` of the largest statistic, rad/s.
+
+    Returns
+    -------
+    t_max : float
+        The largest ``T_j``.
+    j_max : int
+        Its sample index (-1 when there is no candidate).
+    """
+    n = y.shape[0]
+    r = np.zeros((n, 3))
+    for g in range(n):
+        for h in range(n):
+            mgh = m[g, h]
+            r[g, 0] += mgh * y[h, 0]
+            r[g, 1] += mgh * y[h, 1]
+            r[g, 2] += mgh * y[h, 2]
+    t_max = -1.0
+    j_max = -1
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for j in range(n - 1, first - 1, -1):
+        s0 += r[j, 0]
+        s1 += r[j, 1]
+        s2 += r[j, 2]
+        d = den[j]
+        if d <= 0.0:
+            continue
+        t = (s0 * s0 + s1 * s1 + s2 * s2) / (d * sigma2)
+        if t > t_max:
+            t_max = t
+            j_max = j
+            delta_out[0] = s0 / d
+            delta_out[1] = s1 / d
+            delta_out[2] = s2 / d
+    return t_max, j_max

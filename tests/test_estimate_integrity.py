@@ -1,0 +1,174 @@
+"""The estimate's integrity monitors: a gyro that jumps, a frame whose samples share an error, the drift nobody saw.
+
+Each monitor is checked against truth computed here (least squares by numpy, the injected fault's size) and by an
+episode in which, with the monitor switched off, the estimate is confidently wrong (each seen red that way).
+"""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import envs  # noqa: F401
+from startracker import onboard
+from startracker.kernels.filter import gyro_jump_statistic
+
+DEG = math.pi / 180.0
+
+
+def null_design(n_prev, n_cur):
+    """The jump test's null hypothesis, built here: offset, slope, slope change at the span start."""
+    tau = np.arange(n_prev + n_cur) - n_prev + 0.5
+    return np.column_stack([np.ones_like(tau), tau, np.maximum(tau, 0.0)])
+
+
+def test_jump_statistic_is_the_least_squares_step_test():
+    """The kernel's δ̂ and statistic equal a direct regression with a step column, for every candidate reading:
+    δ̂ the step's coefficient, T the drop of the residual sum of squares over σ² (three axes)."""
+    rng = np.random.default_rng(3)
+    n_prev, n_cur, sigma = 10, 10, 0.02
+    x0 = null_design(n_prev, n_cur)
+    n = len(x0)
+    m = np.eye(n) - x0 @ np.linalg.pinv(x0)
+    steps = np.tril(np.ones((n, n)))
+    den = np.array([steps[:, j] @ m @ steps[:, j] for j in range(n)])
+    den[:n_prev] = 0.0
+    true_step = np.array([0.05, -0.08, 0.03])
+    y = x0 @ rng.normal(size=(3, 3)) + sigma * rng.normal(size=(n, 3))
+    y[14:] += true_step
+    rss0 = np.sum(np.linalg.lstsq(x0, y, rcond=None)[1])
+    best = (-1.0, -1, None)
+    for j in range(n_prev, n):
+        x1 = np.column_stack([x0, steps[:, j]])
+        coef, rss1, *_ = np.linalg.lstsq(x1, y, rcond=None)
+        t = (rss0 - np.sum(rss1)) / sigma**2
+        if t > best[0]:
+            best = (t, j, coef[-1])
+    delta = np.zeros(3)
+    t_max, j = gyro_jump_statistic(y, np.ascontiguousarray(m), den, n_prev, sigma**2, delta)
+    assert j == best[1] == 14
+    assert t_max == pytest.approx(best[0], rel=1e-9)
+    np.testing.assert_allclose(delta, best[2], atol=1e-12)
+    # and without a step the statistic is χ²(3): its mean over many windows is near the number of candidates' max
+    ts = []
+    for _ in range(400):
+        y = x0 @ rng.normal(size=(3, 3)) + sigma * rng.normal(size=(n, 3))
+        ts.append(gyro_jump_statistic(y, np.ascontiguousarray(m), den, n_prev, sigma**2, delta)[0])
+    assert max(ts) < onboard.GYRO_JUMP_CHI2_3  # no false alarm in 400 windows at p = 1e-7
+
+
+def test_the_monitor_finds_99_percent_of_the_steps_the_allowance_is_sized_for():
+    """The stated non-centrality: scipy's non-central χ²(3) passes the monitor's threshold with probability 0.99."""
+    from scipy.stats import chi2, ncx2
+
+    assert onboard.GYRO_JUMP_CHI2_3 == pytest.approx(chi2.isf(onboard.GYRO_JUMP_FALSE_ALARM_P, 3), rel=1e-9)
+    assert ncx2.sf(onboard.GYRO_JUMP_CHI2_3, 3, onboard.GYRO_JUMP_NONCENTRALITY_99) == pytest.approx(0.99, abs=1e-6)
+
+
+def test_bias_allowance_is_the_step_the_monitor_finds_99_percent_of_the_time():
+    """b = √(λ₉₉ / χ²₃ verdict) · σ_δ, with σ_δ the step's standard error at the least favourable reading of a span
+    (computed here by regression) and the gyro's white noise per reading (ARW √rate)."""
+    env = gym.make("startracker/AttitudeHold-v0")
+    env.reset(seed=0)
+    unit = env.unwrapped.avionics
+    g = int(round(unit.config.frame_period_s * unit.config.gyro_rate_hz))
+    x0 = null_design(g, g)
+    sigma_delta_rel = []
+    for j in range(g, 2 * g):
+        x1 = np.column_stack([x0, (np.arange(2 * g) >= j).astype(float)])
+        sigma_delta_rel.append(math.sqrt(np.linalg.inv(x1.T @ x1)[-1, -1]))
+    sigma = math.hypot(unit.gyro_spec.arw_rad_sqrt_s * math.sqrt(unit.config.gyro_rate_hz),
+                       onboard.GYRO_JUMP_MODEL_SIGMA_RAD_S)
+    expected = math.sqrt(onboard.GYRO_JUMP_NONCENTRALITY_99 / onboard.VERDICT_CHI2_3) * sigma * max(sigma_delta_rel)
+    assert unit.bias_allowance_rad_s == pytest.approx(expected, rel=1e-9)
+    # the tactical gyro's: a few hundredths of a degree per second
+    assert 0.01 * DEG < unit.bias_allowance_rad_s < 0.05 * DEG
+    env.close()
+
+
+def run(task, faults, steps=80, seed=0, slew=False, **kw):
+    env = gym.make(task, faults=faults, **kw)
+    options = {"slew_angle_deg": 120.0} if slew else None
+    obs, info = env.reset(seed=seed, options=options)
+    unit = env.unwrapped.avionics
+    infos, corrections = [], []
+    if slew:
+        from policies import EigenaxisSlewPolicy
+
+        pol = EigenaxisSlewPolicy.from_env(env)
+    for _ in range(steps):
+        action = pol.act(obs) if slew else np.zeros(env.action_space.shape, np.float32)
+        obs, r, te, tr, info = env.step(action)
+        infos.append(info)
+        corrections.append(unit.gyro_correction_rad_s)
+        if te or tr:
+            break
+    jumps = unit.gyro_jumps_total
+    env.close()
+    return infos, np.array(corrections), jumps
+
+
+BIAS_STEP = [dict(kind="gyro_bias_step", t_start_s=2.03, duration_s=2.0, severity=0.5)]
+
+
+def test_gyro_jump_monitor_finds_the_step_and_its_end(monkeypatch):
+    """A 0.5 °/s bias step in the hold (beyond what the covariance's bias allowance covers): the monitor finds it
+    and its end, its correction during the fault is the injected step's size (the gyro's σ_δ per axis, 4σ), none
+    after; no confidently wrong estimate. With the monitor off the same episode has confidently wrong estimates."""
+    infos, corr, jumps = run("startracker/AttitudeHold-v0", BIAS_STEP)
+    t = np.array([i["time_s"] for i in infos])
+    during = (t > 2.2) & (t < 4.0)
+    after = t > 4.2
+    assert jumps == 2
+    sigma_delta = 1.3 * 0.125 / 60.0 * 10.0  # °/s: σ_δ ≤ 1.3 σ of one reading (ARW 0.125 °/√h at 100 Hz)
+    step_found_deg_s = np.degrees(np.linalg.norm(corr[during], axis=1))
+    np.testing.assert_allclose(step_found_deg_s, 0.5, atol=4 * math.sqrt(3) * sigma_delta)
+    assert np.all(np.degrees(np.linalg.norm(corr[after], axis=1)) < 4 * math.sqrt(6) * sigma_delta)
+    assert infos[-1]["n_confidently_wrong_estimates_total"] == 0
+    assert not any(i["estimate_confidently_wrong"] for i in infos)
+
+    monkeypatch.setattr(onboard, "GYRO_JUMP_CHI2_3", math.inf)
+    infos_off, _, jumps_off = run("startracker/AttitudeHold-v0", BIAS_STEP)
+    assert jumps_off == 0
+    assert infos_off[-1]["n_confidently_wrong_estimates_total"] > 0
+
+
+def test_an_unseen_small_step_stays_within_the_reported_covariance(monkeypatch):
+    """A 0.08 °/s bias step, below what the jump monitor finds in one span: the bias allowance keeps the estimate
+    from being confidently wrong; without the allowance the same episode is."""
+    small = [dict(BIAS_STEP[0], severity=0.08)]
+    infos, _, jumps = run("startracker/AgileSlew-v0", small, steps=100, slew=True)
+    assert jumps == 0  # unseen by the gyro monitor: the allowance and the star tracker's innovations must do
+    assert infos[-1]["n_confidently_wrong_estimates_total"] == 0
+    monkeypatch.setattr(onboard, "BIAS_ALLOWANCE_FACTOR", 0.0)
+    infos_off, _, _ = run("startracker/AgileSlew-v0", small, steps=100, slew=True)
+    assert infos_off[-1]["n_confidently_wrong_estimates_total"] > 0
+
+
+
+@pytest.mark.parametrize("severity,t_start_s,duration_s,seed", [(1.0, 1.0, 1.0, 0), (8.0, 2.0, 0.5, 1),
+                                                                 (3.0, 1.0, 1.0, 1)])
+def test_the_onset_of_a_gyro_clip_is_not_taken_for_a_bias_step(severity, t_start_s, duration_s, seed):
+    """A clip during a 120° slew (10-20 °/s) that begins at a span's last reading looks like a step to the jump
+    monitor; the first saturated span undoes it, so the estimate is never confidently wrong, and it is valid again,
+    arc-seconds from the truth, by the episode's end. (With the undo removed these episodes keep 2-7 °/s of
+    correction in every later reading and report the estimate valid: 70-80 confidently wrong steps.)"""
+    from policies import EigenaxisSlewPolicy
+
+    env = gym.make("startracker/AgileSlew-v0", max_episode_s=10.0,
+                   faults=[dict(kind="gyro_saturation", t_start_s=t_start_s, duration_s=duration_s,
+                                severity=severity)])
+    obs, info = env.reset(seed=seed, options={"slew_angle_deg": 120.0})
+    pol = EigenaxisSlewPolicy.from_env(env)
+    infos = []
+    while True:
+        obs, r, te, tr, info = env.step(pol.act(obs))
+        infos.append(info)
+        if te or tr:
+            break
+    env.close()
+    during = [i for i in infos if t_start_s + 0.2 <= i["time_s"] <= t_start_s + duration_s]
+    assert any(np.degrees(np.max(np.abs(i["omega_true_body"]))) > severity for i in during)  # the clip bites
+    assert infos[-1]["n_confidently_wrong_estimates_total"] == 0
+    assert infos[-1]["estimate_valid"] and infos[-1]["attitude_error_arcsec"] < 60.0

@@ -25,16 +25,6 @@ SIGMA_PX = 0.2
 
 
 @pytest.fixture(scope="module")
-def cat():
-    return select_navigation_stars(load_catalog(6.0), min_separation_rad=np.radians(60 / 3600))
-
-
-@pytest.fixture(scope="module")
-def sensor45():
-    return MultiFovSensor.two_heads(paper001_head(), 45.0)
-
-
-@pytest.fixture(scope="module")
 def matcher45(sensor45, cat):
     return InertialAidedMatcher(sensor45, cat, sigma_px=SIGMA_PX)
 

@@ -14,16 +14,6 @@ from startracker.rotations import quat_from_rotvec, quat_multiply, quat_random
 SIGMA_PX = 0.2
 
 
-@pytest.fixture(scope="module")
-def cat():
-    return select_navigation_stars(load_catalog(6.0), min_separation_rad=np.radians(60 / 3600))
-
-
-@pytest.fixture(scope="module")
-def sensor45():
-    return MultiFovSensor.two_heads(paper001_head(), 45.0)
-
-
 def rich_scene(sensor, cat, rng, min_stars=6):
     while True:
         q = quat_random(rng)

@@ -21,17 +21,6 @@ FRAME_S = 0.1
 SIGMA_PX = 0.3
 
 
-@pytest.fixture(scope="module")
-def nav():
-    # Navigation stars: V <= 6, close doubles (blended into one spot) removed.
-    return select_navigation_stars(load_catalog(6.0), min_separation_rad=np.radians(0.1))
-
-
-@pytest.fixture(scope="module")
-def cam():
-    return camera_preset("paper000", q_cam_to_body=quat_from_rotvec([0.2, -0.1, 0.3]))
-
-
 class Slew:
     """Truth: q(t) = q0 ⊗ exp(ω0 t + α t²/2) about a fixed body axis (exact for a fixed axis)."""
 

@@ -17,16 +17,6 @@ SIGMA_PX = 0.3
 VERDICT_CHI2 = 44.8  # χ²(3) at 1e-9: the verdict of docs/reliability.md
 
 
-@pytest.fixture(scope="module")
-def nav():
-    return select_navigation_stars(load_catalog(6.0), min_separation_rad=np.radians(0.1))
-
-
-@pytest.fixture(scope="module")
-def cam():
-    return camera_preset("paper000", q_cam_to_body=quat_from_rotvec([0.2, -0.1, 0.3]))
-
-
 def nees(sample, q_true):
     e = quat_to_rotvec(quat_multiply(quat_conjugate(sample.q_body_to_icrs), q_true))
     return float(e @ np.linalg.solve(sample.covariance_rad2, e))

@@ -619,6 +619,44 @@ class DelayedFusion:
         self._now = None
         return accepted
 
+    def prior_innovations(self, q_meas_body_to_icrs, t_meas_s, covariance_rad2):
+        """Each sample's innovation against the filter's prediction at its instant, with no update in between (the
+        filter does not change): what the samples say against the gyro-propagated estimate, before any of them
+        moves it.
+
+        Parameters as :meth:`fuse` (time order, unit quaternions, SPD covariances, float64, not before the
+        filter's time, not after :attr:`t_s`).
+
+        Returns
+        -------
+        z : ndarray, shape (M, 3)
+            Innovation ``log(q̂(t_i)* ⊗ q_i)``, rad, body frame.
+        s : ndarray, shape (M, 3, 3)
+            Its covariance ``P_θθ(t_i) + R_i``, rad² (the prediction's errors are shared by the samples).
+        """
+        ekf = self.ekf
+        m = len(t_meas_s)
+        z = np.empty((m, 3))
+        s = np.empty((m, 3, 3))
+        if m == 0:
+            return z, s
+        t_last = float(t_meas_s[-1])
+        j = int(np.searchsorted(self._tg, t_last, side="left"))
+        if j == len(self._tg):
+            wg = (np.asarray(ekf.omega_body, dtype=np.float64) + ekf.bias_rad_s).reshape(1, 3)
+            tg, rn = np.array([max(t_last, ekf.t_s)]), np.zeros((1, 3))
+        else:
+            wg, tg, rn = self._wg[: j + 1], self._tg[: j + 1].copy(), self._rn[: j + 1]
+            tg[j] = t_last
+        q = np.array(ekf.q_body_to_icrs, dtype=np.float64)
+        b = np.array(ekf.bias_rad_s, dtype=np.float64)
+        P = np.array(ekf.P, dtype=np.float64)
+        # a gate below every NIS: each sample is tested against the prediction and none is applied
+        kf.fuse_frame(q, b, P, float(ekf.t_s), wg, tg, q_meas_body_to_icrs, t_meas_s, covariance_rad2, ekf.sigma_v,
+                      ekf.sigma_u, -1.0, np.empty(m, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)),
+                      np.empty(3), rn, np.empty(m), z, s)
+        return z, s
+
     def current(self):
         """The estimate at :attr:`t_s`: :attr:`ekf` propagated through the buffered intervals.
 

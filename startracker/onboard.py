@@ -140,6 +140,11 @@ MONITOR_RECOVERY_DELIVERIES = 5  # after an alarm, the estimate is valid again o
 MONITOR_FALSE_ALARM_P = 1e-4
 _MONITOR_Z = 3.7190164854556804  # the standard normal quantile at 1 - MONITOR_FALSE_ALARM_P
 MONITOR_MEAN_CHI2_3 = chi2_3_threshold(MONITOR_FALSE_ALARM_P)
+# Timing test: a frame's timestamp error δt moves all its samples by ω δt, along the body rate. The innovations'
+# component along ω, weighted and summed over a delivery, is χ²(1) without it (:meth:`StarTrackerUnit._timing_statistic`);
+# summed over the monitor's window, χ²(n). Below this rate, s⁻¹ (0.1 °/s) a timestamp error moves nothing.
+TIMING_MIN_RATE_RAD_S = float(np.radians(0.1))
+MONITOR_TIMING_CHI2_1 = 15.136705226623606  # χ²(1) quantile at 1 - MONITOR_FALSE_ALARM_P (scipy.stats.chi2, tested)
 # Gyro jump monitor: a rigid body's rate is continuous (finite torques) and, within one observed span (one command
 # held), smooth; a step in the readings is a gyro that changed (a bias jump), found by a GLR test over the previous
 # and the current span (:func:`startracker.kernels.filter.gyro_jump_statistic`) at this false-alarm probability per
@@ -583,7 +588,12 @@ class StarTrackerUnit:
                          np.zeros((MONITOR_DELIVERIES, 3, 3)))
         self._monitor_slot = 0
         self._monitor_filled = 0
+        self._timing = np.zeros(MONITOR_DELIVERIES)  # each delivery's timing statistic (χ²(1) each, 0: none)
+        self._timing_n = np.zeros(MONITOR_DELIVERIES)
+        self._timing_last = (0.0, 0.0)  # the last delivery's timing statistic (see _timing_statistic)
         self._inconsistent = False
+        self._timing_suspect = False
+        self._timing_alarms = 0
         self._monitor_alarms = 0
         self._t_lock_lost = None
         self._reacquisition_s: list[float] = []
@@ -801,7 +811,8 @@ class StarTrackerUnit:
             # and the last reading of the frame: the gyro's mean acceleration over it
             k_end = min(int(round((tf + cfg.frame_period_s - t0) / self.gyro_period_s)) - 1, len(omega_meas) - 1)
             alpha = None
-            if k_end > k:
+            # a clipped reading's change is the clip, not the body's acceleration: then the rate is held instead
+            if k_end > k and (rate_noise is None or not rate_noise[k:k_end + 1].any()):
                 alpha = (omega_meas[k_end] - omega_meas[k]) / ((k_end - k) * self.gyro_period_s)
             new = self.process_frame((times, quats), tf, rng, omega_gyro=omega_meas[k], alpha_gyro=alpha)
             samples.extend(new)
@@ -882,6 +893,7 @@ class StarTrackerUnit:
         first)."""
         sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
         return (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0 and not self._inconsistent
+                and not self._timing_suspect
                 and self._t_saturated < self._t_accepted
                 and self._t_gyro_jump < self._t_accepted)
 
@@ -908,7 +920,21 @@ class StarTrackerUnit:
             accepted[0] = True
             first = 1
         # what the filter's checks demand holds by construction (sorted, finite, unit, SPD from Wahba)
-        accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
+        self._timing_last = (0.0, 0.0)
+        fresh = tm[first:] >= self.fusion.ekf.t_s
+        if first == 0 and fresh.any():
+            self._timing_last = self._timing_statistic(qm[fresh], tm[fresh], cm[fresh])
+        if self._timing_last[0] > MONITOR_TIMING_CHI2_1:
+            # the frame's timestamps disagree with the gyro along the rate: fused, it would drag the estimate
+            # (and the bias) by ω δt; it is refused and the estimate is invalid until the timing is quiet again
+            self._timing_suspect = True
+            self._timing[:] = 0.0
+            self._timing_n[:] = 0.0
+            self._monitor_filled = 0
+            self._timing_alarms += 1
+            self.fusion.last_innovation_rad = np.zeros((0, 3))
+        else:
+            accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
         if accepted.any():
             self._t_accepted = max(self._t_accepted, float(tm[accepted][-1]))
         n_wrong = int(np.count_nonzero(wrong))
@@ -935,13 +961,16 @@ class StarTrackerUnit:
                 self._filter_resets += 1
 
     def _monitor_innovations(self) -> None:
-        """Innovation test over the last deliveries: on failure, void the estimate's validity and open the bias
+        """Innovation tests over the last deliveries: on failure, void the estimate's validity and open the bias
         covariance so that the filter relearns the bias; valid again once :data:`MONITOR_RECOVERY_DELIVERIES`
         deliveries since have passed.
 
-        Two statistics of the window (:func:`startracker.kernels.filter.innovation_window`): the spread, Σ NIS
+        Three statistics of the window (:func:`startracker.kernels.filter.innovation_window`): the spread, Σ NIS
         against χ²(3 n), and the mean, (Σz)ᵀ (ΣS)⁻¹ (Σz) against χ²(3): a bias drags the innovations one way, and
-        the mean sees a steady offset √n times sooner than the spread."""
+        the mean sees a steady offset √n times sooner than the spread; and the timing test of each delivery before
+        it was fused (:meth:`_timing_statistic`), summed against χ²(n): a frame whose timestamp is off moves all its
+        samples along ω, a frame's worth of shared error the filter would otherwise average as if independent (a
+        single delivery beyond χ²(1) is refused before fusion, in :meth:`_deliver`)."""
         fusion = self.fusion
         if len(fusion.last_innovation_rad) == 0:
             return
@@ -949,20 +978,55 @@ class StarTrackerUnit:
         total, n, mean_chi2 = filter_kernels.innovation_window(
             fusion.last_nis, fusion.last_innovation_rad, fusion.last_innovation_cov_rad2, *ring,
             self._monitor_slot)
+        t_frame, n_frame = self._timing_last
+        self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
+        n_timing = float(np.sum(self._timing_n))
+        timing_alarm = n_timing > 0 and float(np.sum(self._timing)) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         self._monitor_slot = (self._monitor_slot + 1) % MONITOR_DELIVERIES
         self._monitor_filled += 1
-        if total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3:
+        if total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3 or timing_alarm:
             ekf = fusion.ekf
             p_bb = np.diag(ekf.P[3:, 3:])
             ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))
             fusion.start(ekf)  # its state changed: the estimate now is recomputed
             for a in ring:
                 a[:] = 0.0
+            self._timing[:] = 0.0
+            self._timing_n[:] = 0.0
             self._monitor_filled = 0
             self._inconsistent = True
+            self._timing_suspect = self._timing_suspect or timing_alarm
             self._monitor_alarms += 1
-        elif self._inconsistent and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES:
+            return
+        if self._inconsistent and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES:
             self._inconsistent = False
+        # A timestamp fault lasts: after a timing alarm the estimate stays invalid until the window shows no sign of
+        # one (its timing sum below χ²(n)'s median), not merely none strong enough to alarm again.
+        if self._timing_suspect and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES and (
+                n_timing == 0 or float(np.sum(self._timing)) <= _chi2_quantile_wilson_hilferty(n_timing, 0.0)):
+            self._timing_suspect = False
+
+    def _timing_statistic(self, qm, tm, cm) -> tuple[float, float]:
+        """The timing test of a delivery's samples (M, 4), (M,), (M, 3, 3), before they are fused; returns the
+        statistic and whether there is one (1.0) or not (0.0: too slow a rate for a timestamp to matter).
+
+        A timestamp error δt shared by the samples moves each by ``ω δt``, along the body rate (direction ``u``).
+        Against the filter's prediction (:meth:`startracker.filter.DelayedFusion.prior_innovations`), the samples'
+        weighted mean innovation along ``u``, ``c = Σ (uᵀz_i / r_i) / Σ 1 / r_i`` with ``r_i = uᵀ R_i u``, has
+        variance ``p + 1 / Σ 1 / r_i`` without one, ``p`` the prediction's variance along ``u`` (its error is shared by
+        the samples; the largest over the frame). ``c² / var`` is χ²(1)."""
+        ekf = self.fusion.ekf
+        w = ekf.omega_body
+        w_norm = math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
+        if w_norm < TIMING_MIN_RATE_RAD_S or len(tm) == 0:
+            return 0.0, 0.0
+        u = w / w_norm
+        z, s = self.fusion.prior_innovations(qm, tm, cm)
+        r = np.einsum("i,mij,j->m", u, cm, u)
+        p = float(np.max(np.einsum("i,mij,j->m", u, s, u) - r))
+        inv = 1.0 / r
+        c = float(np.sum((z @ u) * inv)) / float(np.sum(inv))
+        return c * c / (max(p, 0.0) + 1.0 / float(np.sum(inv))), 1.0
 
     @property
     def n_wrong_samples_total(self) -> int:

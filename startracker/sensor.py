@@ -345,6 +345,7 @@ class StarTracker:
             raise ValueError(f"min_matched_fraction must be in [0, 1], got {min_matched_fraction}")
         self.sigma_rad = self.centroid_sigma_px / camera.focal_length_px
         expected = np.sqrt(2.0) * self.sigma_rad * RAD_TO_ARCSEC
+        self._residual_expected_arcsec = float(expected)  # RMS of a star's 2-D residual for the model's σ
         self.max_residual_arcsec = (
             3.0 * expected if max_residual_arcsec is None else check_positive(max_residual_arcsec, "max_residual_arcsec")
         )
@@ -742,6 +743,12 @@ class StarTracker:
             n_ok = len(sel)
             skipped = tuple(sorted(set(skipped) | set(off)))
             base["skipped"] = skipped
+        # Residuals larger than the centroid model claims (streaks in stray light, a rate beyond the model): the
+        # instant's covariance grows by its a-posteriori variance factor, never shrinks (2 n - 3 degrees of freedom).
+        n_sel = n_stars[sel].astype(np.float64)
+        factor = (rms_all[sel] / self._residual_expected_arcsec) ** 2 / np.maximum(1.0 - 1.5 / n_sel, 0.25)
+        if np.any(factor > 1.0):
+            cov_sol = cov_sol * np.maximum(factor, 1.0)[:, None, None]
         # the rows of the frame's own copies: no sample shares memory with another or with the tracker
         samples = list(map(AttitudeSample, t_s.tolist(), q_sol, cov_sol, n_stars[sel].tolist()))
         new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)

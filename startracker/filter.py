@@ -551,6 +551,16 @@ class DelayedFusion:
             self.ekf.process(self._wg[:k], self._tg[:k], *empty, rate_noise_rad2_s=self._rn[:k], validate=False)
         self._keep_from(n_old)
 
+    def correct_gyro(self, delta_rad_s, t_from_s: float) -> None:
+        """Subtract ``delta_rad_s`` (3,) from the buffered gyro intervals that end after ``t_from_s`` (a gyro step
+        found late: the readings from the step on, not yet in the filter, are corrected; what the filter already
+        integrated is the caller's to account for)."""
+        later = self._tg > t_from_s
+        if later.any():
+            self._wg = self._wg.copy()
+            self._wg[later] -= np.asarray(delta_rad_s, dtype=np.float64)
+            self._now = None
+
     def fuse(self, q_meas_body_to_icrs, t_meas_s, covariance_rad2) -> np.ndarray:
         """Fuse attitude samples (time order, unit quaternions, SPD covariances, float64) at their exposure instants.
 

@@ -153,6 +153,8 @@ MONITOR_TIMING_CHI2_1 = 15.136705226623606  # χ²(1) quantile at 1 - MONITOR_FA
 GYRO_JUMP_FALSE_ALARM_P = 1e-7
 GYRO_JUMP_CHI2_3 = chi2_3_threshold(GYRO_JUMP_FALSE_ALARM_P)
 GYRO_JUMP_MODEL_SIGMA_RAD_S = 1e-5
+# The second look: a span's readings are tested again one span later, with that span's readings after them.
+GYRO_JUMP_SECOND_LOOK = True
 # The non-centrality λ at which the jump monitor's χ²(3) statistic passes its threshold with probability 0.99 (a step
 # of √λ σ_δ is found 99 % of the time; scipy.stats.ncx2, tested).
 GYRO_JUMP_NONCENTRALITY_99 = 66.14439045439
@@ -605,6 +607,9 @@ class StarTrackerUnit:
         self._gyro_jumps = 0
         self._gyro_prev = np.zeros((0, 3))  # the previous span's readings (the jump test's left side)
         self._gyro_prev_saturated = False
+        self._gyro_prev_times = np.zeros(0)  # their interval starts and end (G + 1,)
+        self._gyro_prev2 = np.zeros((0, 3))  # the span before (the second look's left side)
+        self._gyro_prev2_saturated = False
         self._gyro_correction = np.zeros(3)  # sum of the steps the jump monitor found, rad/s
         self._correction_before_jump = None  # the correction before a step found in the last span
         self._frame_latency_ms = 0.0
@@ -654,18 +659,22 @@ class StarTrackerUnit:
             self.gyro_spec, q_body_to_icrs, sigma_attitude_rad=max(3 * sig, 1e-5), t_s=t_s, gate_chi2=30.0,
         )
 
-    def _jump_design(self, n_prev: int, n_cur: int):
+    def _jump_design(self, n_prev: int, n_cur: int, n_next: int = 0):
         """The jump test's null fit over ``n_prev`` readings of the previous span and ``n_cur`` of this one: its
         residual projector (n, n), each candidate step's ``den`` (n,) (0: not a candidate) and the first candidate.
 
         The null hypothesis is a smooth rate: an offset, a slope, and a change of slope where this span starts (a new
-        command); the readings are evenly spaced, so the design depends on the counts only and is built once."""
-        key = (n_prev, n_cur)
+        command); the readings are evenly spaced, so the design depends on the counts only and is built once. With
+        ``n_next`` > 0 (the second look, :meth:`_second_look`) the window runs on through ``n_next`` readings of the
+        span after, with a slope change where it starts too, and the candidates stay those of the middle span."""
+        key = (n_prev, n_cur, n_next)
         design = self._jump_designs.get(key)
         if design is None:
-            n = n_prev + n_cur
+            n = n_prev + n_cur + n_next
             tau = np.arange(n, dtype=np.float64) - n_prev + 0.5  # reading mid-times, in readings, from the span start
             cols = [np.ones(n), tau] + ([np.maximum(tau, 0.0)] if n_prev >= 2 else [])
+            if n_next:
+                cols.append(np.maximum(tau - n_cur, 0.0))
             x = np.column_stack(cols)
             m = np.eye(n) - x @ np.linalg.pinv(x)
             steps = np.tril(np.ones((n, n)))  # column j: the step from reading j on
@@ -673,6 +682,7 @@ class StarTrackerUnit:
             den[den < 1e-9] = 0.0  # a step the smooth rate can follow: no test there
             first = n_prev if n_prev >= 2 else 0
             den[:first] = 0.0
+            den[n_prev + n_cur:] = 0.0
             design = self._jump_designs[key] = (np.ascontiguousarray(m), den, first)
         return design
 
@@ -705,7 +715,9 @@ class StarTrackerUnit:
             self._allowance_span = len(omega_meas)
             self.bias_allowance_rad_s = self._bias_allowance(self._allowance_span)
         prev, prev_saturated = self._gyro_prev, self._gyro_prev_saturated
-        self._gyro_prev, self._gyro_prev_saturated = omega_meas, saturated
+        prev2, prev2_saturated, prev_times = self._gyro_prev2, self._gyro_prev2_saturated, self._gyro_prev_times
+        self._gyro_prev2, self._gyro_prev2_saturated = prev, prev_saturated
+        self._gyro_prev, self._gyro_prev_saturated, self._gyro_prev_times = omega_meas, saturated, times
         if saturated or prev_saturated or (len(prev) == 0 and len(omega_meas) < 3):
             return omega_meas  # a clipped reading is the saturation monitor's; too few readings for a line and a step
         y = np.concatenate([prev, omega_meas]) if len(prev) else omega_meas
@@ -715,6 +727,8 @@ class StarTrackerUnit:
         t_max, j = filter_kernels.gyro_jump_statistic(np.ascontiguousarray(y, dtype=np.float64), m, den, first,
                                                       sigma2, delta)
         if j < 0 or t_max <= GYRO_JUMP_CHI2_3:
+            if GYRO_JUMP_SECOND_LOOK and len(prev2) >= 2 and len(prev) >= 2 and not prev2_saturated:
+                return self._second_look(prev2, prev, prev_times, omega_meas)
             return omega_meas
         g = j - len(prev)
         self._gyro_jumps += 1
@@ -731,6 +745,47 @@ class StarTrackerUnit:
             p_bb = ekf.P[3:, 3:] + np.diag(reach**2)
             ekf.set_bias_covariance(p_bb)
             self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
+        return omega_meas
+
+    def _second_look(self, prev2, prev, prev_times, omega_meas) -> np.ndarray:
+        """The jump test of the previous span's readings again, now with this span's readings after them.
+
+        A step tested in its own span has few readings after it when it falls late there (σ_δ up to 1.3 σ of one
+        reading); one span later it has a whole span more, and the test over the three spans (offset, slope and a
+        slope change at each span start as the null; :meth:`_jump_design`) sees a step ~2× smaller. Found: this
+        span's readings and the buffered ones from the step on are corrected by δ̂ (the filter's own intervals
+        before that it has integrated: its attitude covariance opens by that drift), the bias covariance opens as
+        for a step found at once, and the estimate is invalid until a sample fused after now is accepted."""
+        n2, n1, n0 = len(prev2), len(prev), len(omega_meas)
+        m, den, first = self._jump_design(n2, n1, n0)
+        y = np.ascontiguousarray(np.concatenate([prev2, prev, omega_meas]), dtype=np.float64)
+        delta = np.zeros(3)
+        sigma2 = self._jump_sigma_rad_s**2
+        t_max, j = filter_kernels.gyro_jump_statistic(y, m, den, first, sigma2, delta)
+        if j < 0 or t_max <= GYRO_JUMP_CHI2_3:
+            return omega_meas
+        g = j - n2  # reading g of the previous span covers (prev_times[g], prev_times[g + 1]]
+        t_step = float(prev_times[g])
+        self._gyro_jumps += 1
+        self._gyro_correction = self._gyro_correction + delta
+        omega_meas = omega_meas - delta
+        corrected = prev.copy()
+        corrected[g:] -= delta
+        self._gyro_prev2, self._gyro_prev = corrected, omega_meas
+        reach = np.abs(delta) + 3.0 * math.sqrt(sigma2 / den[j])
+        fusion = self.fusion
+        ekf = fusion.ekf
+        if ekf is not None:
+            fusion.correct_gyro(delta, t_step)
+            self._t_gyro_jump = max(t_step, float(ekf.t_s))
+            p = ekf.P.copy()
+            drift_s = max(float(ekf.t_s) - t_step, 0.0)
+            p[:3, :3] += np.diag((reach * drift_s) ** 2)
+            p[3:, 3:] += np.diag(reach**2)
+            ekf.ekf.P = p
+            fusion.start(ekf)  # its state changed: the estimate now is recomputed
+        else:
+            self._t_gyro_jump = t_step
         return omega_meas
 
     def _undo_clip_onset_step(self, saturated: bool, was_saturated: bool) -> None:
@@ -1047,6 +1102,12 @@ class StarTrackerUnit:
     def n_confidently_wrong_estimates_total(self) -> int:
         """Spans since :meth:`reset` that ended with a wrong estimate flagged valid."""
         return self._n_confidently_wrong_estimates
+
+    @property
+    def timing_alarms_total(self) -> int:
+        """Deliveries refused since :meth:`reset` because their samples disagreed with the gyro along the rate (the
+        timing test: a frame whose timestamp is off)."""
+        return self._timing_alarms
 
     @property
     def gyro_jumps_total(self) -> int:

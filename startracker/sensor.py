@@ -264,6 +264,11 @@ class StarTracker:
         along the motion). Needs the detections' ``intensity``.
     blend_flux_ratio : float
         Threshold of that photometric blend test (> 1): a join of two equal exposures carries 2.
+    scale_by_residuals : bool
+        Each instant's covariance grows by its a-posteriori variance factor, ``rms² / (2 σ_c² (1 - 3 / 2n))`` with
+        ``n`` its stars, when that exceeds 1 (never shrinks): residuals larger than the centroid model claims
+        (streaks in stray light, a rate beyond the model) widen the sample's covariance instead of leaving it
+        confidently wrong. Default True.
     shift_k_sigma : float
         Exposure plan: N is also limited so that the spots of one star stay ``2 shift_k_sigma`` prediction
         σ apart, keeping that one-exposure-off match improbable.
@@ -305,6 +310,7 @@ class StarTracker:
         instant_gate: float = 16.0,
         star_flux=None,
         blend_flux_ratio: float = 1.6,
+        scale_by_residuals: bool = True,
         shift_k_sigma: float = 4.0,
         accel_sigma_rad_s2: float = 0.02,
         recovery_accel_sigma_rad_s2: float = 0.2,
@@ -359,6 +365,9 @@ class StarTracker:
             if len(self._star_flux) != len(catalog.vmag) or np.any(self._star_flux <= 0):
                 raise ValueError(f"star_flux must hold one positive value per catalog star ({len(catalog.vmag)})")
         self.blend_flux_ratio = check_positive(blend_flux_ratio, "blend_flux_ratio")
+        if not isinstance(scale_by_residuals, (bool, np.bool_)):
+            raise TypeError(f"scale_by_residuals must be a bool, got {type(scale_by_residuals).__name__}")
+        self.scale_by_residuals = bool(scale_by_residuals)
         if self.blend_flux_ratio <= 1.0:
             raise ValueError(f"blend_flux_ratio must be > 1, got {blend_flux_ratio}")
         self._intensity = np.zeros(0)  # this frame's detection intensities (the photometric blend test)
@@ -747,7 +756,7 @@ class StarTracker:
         # instant's covariance grows by its a-posteriori variance factor, never shrinks (2 n - 3 degrees of freedom).
         n_sel = n_stars[sel].astype(np.float64)
         factor = (rms_all[sel] / self._residual_expected_arcsec) ** 2 / np.maximum(1.0 - 1.5 / n_sel, 0.25)
-        if np.any(factor > 1.0):
+        if self.scale_by_residuals and np.any(factor > 1.0):
             cov_sol = cov_sol * np.maximum(factor, 1.0)[:, None, None]
         # the rows of the frame's own copies: no sample shares memory with another or with the tracker
         samples = list(map(AttitudeSample, t_s.tolist(), q_sol, cov_sol, n_stars[sel].tolist()))

@@ -172,3 +172,77 @@ def test_the_onset_of_a_gyro_clip_is_not_taken_for_a_bias_step(severity, t_start
     assert any(np.degrees(np.max(np.abs(i["omega_true_body"]))) > severity for i in during)  # the clip bites
     assert infos[-1]["n_confidently_wrong_estimates_total"] == 0
     assert infos[-1]["estimate_valid"] and infos[-1]["attitude_error_arcsec"] < 60.0
+
+
+def test_the_second_look_finds_a_step_late_in_its_span(monkeypatch):
+    """A 0.12 °/s bias step at the last reading of a span, in the hold: its own span has one reading after it
+    (σ_δ ≈ 1.2 σ of a reading: λ ≈ 23, under the threshold 35.4), so the first test misses it; one span later
+    the second look has ten more (λ ≈ 100) and finds it, its correction the injected step within 4 σ_δ of the
+    second look. Without the second look the same episode's step goes unseen."""
+    step = [dict(kind="gyro_bias_step", t_start_s=2.085, duration_s=1.0, severity=0.12)]
+    infos, corr, jumps = run("startracker/AttitudeHold-v0", step, steps=30)
+    t = np.array([i["time_s"] for i in infos])
+    assert jumps >= 1
+    during = (t > 2.3) & (t < 3.0)
+    sigma_delta_2 = 0.6 * 0.125 / 60.0 * 10.0  # °/s: the second look's σ_δ ≤ 0.6 σ of one reading
+    np.testing.assert_allclose(np.degrees(np.linalg.norm(corr[during], axis=1)), 0.12,
+                               atol=4 * math.sqrt(3) * sigma_delta_2)
+    assert infos[-1]["n_confidently_wrong_estimates_total"] == 0
+    monkeypatch.setattr(onboard, "GYRO_JUMP_SECOND_LOOK", False)
+    _, _, jumps_off = run("startracker/AttitudeHold-v0", step, steps=30)
+    assert jumps_off == 0
+
+
+def test_a_frame_whose_timestamp_is_off_is_refused_and_a_clean_run_is_not(monkeypatch):
+    """Time-tag jitter of 2 ms (1σ) during random slews of 5-14 °/s moves each frame's samples by ω δt along the
+    rate, tens to hundreds of arc-seconds: the timing test refuses such frames (and flags the estimate invalid),
+    while the same seeds without the fault see no refusal (the test's false-alarm rate is 1e-4 per delivery).
+    Without the timing test nothing is refused for its timing."""
+    def refusals(faults, seed):
+        env = gym.make("startracker/AgileSlew-v0", faults=faults, max_episode_s=8.0)
+        obs, info = env.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        done = False
+        while not done:
+            obs, r, te, tr, info = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+            done = te or tr
+        n = env.unwrapped.avionics.timing_alarms_total
+        env.close()
+        return n
+
+    jitter = [dict(kind="time_jitter", t_start_s=3.0, duration_s=4.0, severity=2.0)]
+    assert all(refusals(jitter, seed) >= 3 for seed in (0, 1))
+    assert all(refusals([], seed) == 0 for seed in (0, 1))
+    monkeypatch.setattr(onboard, "TIMING_MIN_RATE_RAD_S", math.inf)
+    assert refusals(jitter, 0) == 0
+
+
+def test_a_clipped_gyro_is_not_taken_for_the_body_acceleration(monkeypatch):
+    """A gyro that clips at 2 °/s while the body turns faster: the change of its readings over a frame is the clip,
+    not the body's acceleration, so the tracker is not handed it (it holds the rate instead); frames with unclipped
+    readings still get the gyro's mean acceleration. (Handed the clip, the tracker predicted the later exposures of a
+    frame where the stars were not: a wrong sample in the 10⁶-step soak.)"""
+    from policies import EigenaxisSlewPolicy
+
+    env = gym.make("startracker/AgileSlew-v0", max_episode_s=6.0,
+                   faults=[dict(kind="gyro_saturation", t_start_s=2.05, duration_s=1.0, severity=2.0)])
+    obs, info = env.reset(seed=0, options={"slew_angle_deg": 120.0})
+    unit = env.unwrapped.avionics
+    seen = []
+    original = unit.process_frame
+
+    def spy(truth, t_frame, rng, omega_gyro=None, alpha_gyro=None, **kw):
+        seen.append((t_frame, alpha_gyro))
+        return original(truth, t_frame, rng, omega_gyro=omega_gyro, alpha_gyro=alpha_gyro, **kw)
+
+    monkeypatch.setattr(unit, "process_frame", spy)
+    pol = EigenaxisSlewPolicy.from_env(env)
+    for _ in range(40):
+        obs, r, te, tr, info = env.step(pol.act(obs))
+        if 2.2 < info["time_s"] < 3.0:
+            assert np.degrees(np.max(np.abs(info["omega_true_body"]))) > 2.0  # the clip bites
+    env.close()
+    clipped = [a for t, a in seen if 2.05 <= t < 3.0]
+    free = [a for t, a in seen if 0.5 <= t < 1.9]
+    assert clipped and all(a is None for a in clipped)
+    assert free and all(a is not None for a in free)

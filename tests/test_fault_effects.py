@@ -2,6 +2,8 @@
 (detections, tracker mode, samples, timing, gyro, attitude error), so a fault whose implementation is removed
 fails its test here. The sun 10° off the boresight blinds the camera in both fidelities."""
 
+import math
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -9,6 +11,7 @@ import pytest
 import envs  # noqa: F401
 from envs.faults import FAULT_KINDS, Fault, FaultSchedule
 from policies import EigenaxisSlewPolicy, ZeroPolicy
+from startracker import onboard
 from startracker.catalog import load_catalog
 from startracker.centroid.fidelity import simulate_detections
 from startracker.imaging import KIND_STAR, SensorModel, background_field
@@ -30,7 +33,8 @@ def run(kind=None, severity=None, task=HOLD, steps=70, seed=0, **kw):
     rows = []
     for _ in range(steps):
         obs, _, te, tr, info = env.step(pol.act(obs))
-        rows.append(dict(info, time_error_s=env.unwrapped.avionics.last_time_error_s))
+        rows.append(dict(info, time_error_s=env.unwrapped.avionics.last_time_error_s,
+                         gyro_jumps=env.unwrapped.avionics.gyro_jumps_total))
         if te or tr:
             break
     env.close()
@@ -183,9 +187,10 @@ def test_time_jitter_tags_frames_with_the_stated_error_and_degrades_a_fast_slew(
 
 
 # ---------------------------------------------------------------------------------------------------- gyro
-def test_gyro_bias_step_shifts_the_gyro_and_the_attitude_error_jumps():
-    """``gyro_bias_step`` 0.1 °/s: the gyro samples move by exactly 0.1 °/s along one unit axis while active, and
-    the attitude error during the fault peaks far above the fault-free run's."""
+def test_gyro_bias_step_shifts_the_gyro_and_the_attitude_error_jumps(monkeypatch):
+    """``gyro_bias_step`` 0.1 °/s: the gyro samples move by exactly 0.1 °/s along one unit axis while active; the
+    unit's jump monitor sees the step (none in the fault-free run), and with the monitor off the attitude error
+    during the fault peaks far above the fault-free run's."""
     sched = FaultSchedule([Fault("gyro_bias_step", 1.0, 1.0, 0.1)])
     t = np.linspace(0.0, 3.0, 301)
     w = np.random.default_rng(0).normal(size=(301, 3)) * 1e-3
@@ -193,8 +198,11 @@ def test_gyro_bias_step_shifts_the_gyro_and_the_attitude_error_jumps():
     on = (t > 1.0) & (t <= 2.0)
     np.testing.assert_allclose(np.linalg.norm(out[on] - w[on], axis=1), np.radians(0.1), rtol=1e-12)
     np.testing.assert_array_equal(out[~on], w[~on])
-    base, rows = during(run()), during(run("gyro_bias_step", 0.1))
-    assert max(i["attitude_error_arcsec"] for i in rows) > 3 * max(i["attitude_error_arcsec"] for i in base)
+    base, rows = run(), run("gyro_bias_step", 0.1)
+    assert rows[-1]["gyro_jumps"] >= 1 and base[-1]["gyro_jumps"] == 0
+    monkeypatch.setattr(onboard, "GYRO_JUMP_CHI2_3", math.inf)
+    unseen = during(run("gyro_bias_step", 0.1))
+    assert max(i["attitude_error_arcsec"] for i in unseen) > 3 * max(i["attitude_error_arcsec"] for i in during(base))
 
 
 def test_gyro_saturation_clips_the_rate_and_wrecks_the_estimate_in_a_slew():

@@ -824,7 +824,7 @@ class StarTrackerUnit:
             stats["wall_clock_breakdown_ms"] = {k: v / n_frames for k, v in breakdown.items()}
         stats["n_attitude_samples"] = len(samples)
         # distinct attitude instants: heads exposed at the same instant add samples, not updates
-        n_instants = len(np.unique(np.round(np.array([smp.t_s for smp in samples]) * 1e6))) if samples else 0
+        n_instants = len(set(np.round(np.array([smp.t_s for smp in samples]) * 1e6).tolist())) if samples else 0
         stats["update_rate_hz"] = n_instants / duration_s
         stats["update_rate_hz_per_head"] = (per_head_n / duration_s).tolist()
         stats["lost_lock_events"] = self._lost_events
@@ -900,7 +900,7 @@ class StarTrackerUnit:
         if len(tm) > 1 and np.any(tm[1:] < tm[:-1]):  # several heads: merge into time order (stable)
             order = np.argsort(tm, kind="stable")
             tm, qm, cm, wrong = tm[order], qm[order], cm[order], wrong[order]
-        qm = qm / np.linalg.norm(qm, axis=1)[:, None]
+        qm = qm / rk.vector_norm(qm)[:, None]  # np.linalg.norm(qm, axis=1)'s arithmetic, without its dispatch
         accepted = np.zeros(len(tm), dtype=bool)
         first = 0
         if self.fusion.ekf is None:  # the first fix starts the filter

@@ -508,8 +508,9 @@ def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, m
         b = np.empty((len(det), 3))
         r = np.empty((len(det), 3))
         for t in range(len(det)):
-            b[t] = v[det[t]]
-            r[t] = nav[navm[t]]
+            for a in range(3):  # element copies: a row assignment compiles numba's shape-check machinery
+                b[t, a] = v[det[t], a]
+                r[t, a] = nav[navm[t], a]
         rot = rotation_svd(b, r)
         nearest_two(rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * chord, dist, idx)
         det2, nav2, dm = select_matches(dist, idx, chord)
@@ -621,8 +622,10 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
                                                              n_req, max_rounds, stable_fit, dist_g, idx_g)
             if ok_g and len(det_g) > len(det):
                 rot, det, navm, dm = rot_g, det_g, nav_g, dm_g
-                dist[:, :] = dist_g
-                idx[:, :] = idx_g
+                for q in range(n):
+                    for c in range(2):
+                        dist[q, c] = dist_g[q, c]
+                        idx[q, c] = idx_g[q, c]
     near = 0
     for q in range(n):
         if dist[q, 0] > chord and dist[q, 0] <= 3.0 * chord:

@@ -768,13 +768,13 @@ class StarTrackerUnit:
         if self.gyro is None:
             raise RuntimeError("call reset(rng) before observe()")
         times, quats = times_s, q_body_to_icrs
-        t0 = times[0]
+        t0 = float(times[0])  # frame times as Python floats: the per-frame callees' fast path takes them unchecked
         cfg = self.config
         n_frames = int(round((times[-1] - t0) / cfg.frame_period_s))
         duration_s = n_frames * cfg.frame_period_s
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
-            omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / np.diff(times)[:, None]
+            omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]  # np.diff
             omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
             if self.faults:
                 omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
@@ -1101,7 +1101,7 @@ class StarTrackerUnit:
             plan = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
             det, scene = head.detections(self.catalogs[k], truth, plan, t_frame, rng, cfg.fidelity, bodies)
-            if len(det) and np.any(det.intensity <= 0):
+            if len(det) and (det.intensity <= 0).any():
                 det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
             if faults:
                 det = faults.modify_detections(det, t_mid, rng, head.camera.resolution)

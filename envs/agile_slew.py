@@ -351,7 +351,7 @@ class AgileSlewEnv(gym.Env):
         if not np.isfinite(a).all():
             raise ValueError("action contains NaN or inf")
         a = np.minimum(np.maximum(a, -1.0), 1.0)  # finite: the same as np.clip, without its dispatch
-        self.spacecraft.apply_wheel_torque(a * self.spacecraft.wheel_max_torque_Nm)
+        self.spacecraft.apply_wheel_torque(a * self.spacecraft.wheel_max_torque_Nm, validate=False)  # a is checked
         # the env steps the physics and records the truth; the avionics observe it
         dt_gyro = self.avionics.gyro_period_s
         t0, q0 = self.spacecraft.time_s, self.spacecraft.q_body_to_icrs
@@ -399,8 +399,9 @@ class AgileSlewEnv(gym.Env):
         obs = np.empty(10 + n_w, dtype=np.float32)
         obs[0:3] = rk.quat_relative_rotvec(est.q_body_to_icrs, self._q_target)
         w_max = self.avionics.gyro_max_rate_rad_s
-        obs[3:6] = np.clip(est.omega_body, -w_max, w_max)
-        obs[6:6 + n_w] = np.clip(wheels, -1.0, 1.0)
+        # np.clip's arithmetic (max then min) without its dispatch
+        obs[3:6] = np.minimum(np.maximum(est.omega_body, -w_max), w_max)
+        obs[6:6 + n_w] = np.minimum(np.maximum(wheels, -1.0), 1.0)
         obs[6 + n_w:9 + n_w] = 0.0
         obs[6 + n_w + TRACKER_MODES.index(self.avionics.tracker_mode)] = 1.0
         obs[9 + n_w] = min(est.attitude_sigma_rad, np.pi)

@@ -462,7 +462,7 @@ class Spacecraft:
             self.restore_state(saved)  # bad input leaves the spacecraft as it was
             raise
 
-    def apply_wheel_torque(self, torque_Nm) -> np.ndarray:
+    def apply_wheel_torque(self, torque_Nm, *, validate: bool = True) -> np.ndarray:
         """Command motor torques, held until the next call.
 
         Parameters
@@ -470,16 +470,23 @@ class Spacecraft:
         torque_Nm : array_like, shape (n_wheels,)
             Torque of each motor on its wheel about the wheel axis, N m (the bus feels the opposite).
             Clipped to ``±wheel_max_torque_Nm``.
+        validate : bool
+            False skips the checks, for a caller passing a finite float64 array of shape (n_wheels,) (the env's
+            checked action).
 
         Returns
         -------
         ndarray, shape (n_wheels,)
             The clipped command.
         """
-        t = as_float_array(torque_Nm, "torque_Nm", ndim=1)
-        if t.shape != (self._n,):
-            raise ValueError(f"torque_Nm must have shape ({self._n},), got {t.shape}")
-        np.clip(t, -self._tau_max, self._tau_max, out=self._torque_cmd)
+        if validate:
+            t = as_float_array(torque_Nm, "torque_Nm", ndim=1)
+            if t.shape != (self._n,):
+                raise ValueError(f"torque_Nm must have shape ({self._n},), got {t.shape}")
+        else:
+            t = torque_Nm
+        # np.clip's arithmetic (max then min) without its dispatch
+        np.minimum(np.maximum(t, -self._tau_max), self._tau_max, out=self._torque_cmd)
         self.data.ctrl[:] = self._torque_cmd
         return self._torque_cmd.copy()
 

@@ -833,13 +833,13 @@ class StarTrackerUnit:
         if self.gyro is None:
             raise RuntimeError("call reset(rng) before observe()")
         times, quats = times_s, q_body_to_icrs
-        t0 = times[0]
+        t0 = float(times[0])  # frame times as Python floats: the per-frame callees' fast path takes them unchecked
         cfg = self.config
         n_frames = int(round((times[-1] - t0) / cfg.frame_period_s))
         duration_s = n_frames * cfg.frame_period_s
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
-            omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / np.diff(times)[:, None]
+            omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]  # np.diff
             omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
             if self.faults:
                 omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
@@ -890,7 +890,7 @@ class StarTrackerUnit:
             stats["wall_clock_breakdown_ms"] = {k: v / n_frames for k, v in breakdown.items()}
         stats["n_attitude_samples"] = len(samples)
         # distinct attitude instants: heads exposed at the same instant add samples, not updates
-        n_instants = len(np.unique(np.round(np.array([smp.t_s for smp in samples]) * 1e6))) if samples else 0
+        n_instants = len(set(np.round(np.array([smp.t_s for smp in samples]) * 1e6).tolist())) if samples else 0
         stats["update_rate_hz"] = n_instants / duration_s
         stats["update_rate_hz_per_head"] = (per_head_n / duration_s).tolist()
         stats["lost_lock_events"] = self._lost_events
@@ -967,7 +967,7 @@ class StarTrackerUnit:
         if len(tm) > 1 and np.any(tm[1:] < tm[:-1]):  # several heads: merge into time order (stable)
             order = np.argsort(tm, kind="stable")
             tm, qm, cm, wrong = tm[order], qm[order], cm[order], wrong[order]
-        qm = qm / np.linalg.norm(qm, axis=1)[:, None]
+        qm = qm / rk.vector_norm(qm)[:, None]  # np.linalg.norm(qm, axis=1)'s arithmetic, without its dispatch
         accepted = np.zeros(len(tm), dtype=bool)
         first = 0
         if self.fusion.ekf is None:  # the first fix starts the filter
@@ -1226,7 +1226,7 @@ class StarTrackerUnit:
             plan = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
             det, scene = head.detections(self.catalogs[k], truth, plan, t_frame, rng, cfg.fidelity, bodies)
-            if len(det) and np.any(det.intensity <= 0):
+            if len(det) and (det.intensity <= 0).any():
                 det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
             if faults:
                 det = faults.modify_detections(det, t_mid, rng, head.camera.resolution)

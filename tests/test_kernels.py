@@ -164,6 +164,32 @@ def test_sweep_pairs_leave_the_same_set_as_the_kdtree(seed):
     assert kept(sweep) == kept(ref)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_saddle_search_finds_the_exhaustive_least_point(seed):
+    """The bounded bisection of the near-overlap model returns the first least of the 33 summed profile values,
+    as evaluating every point does: still and streaked spots, equal twins (ties), near and far pairs."""
+    from startracker.kernels.centroid import profile_at, profile_terms, saddle_search
+
+    rng = np.random.default_rng(seed)
+    a, b, lows = np.empty(33), np.empty(33), np.empty(24, dtype=np.int64)
+    n_inner = 0
+    for _ in range(400):
+        se2 = rng.uniform(0.3, 4.0, 2)
+        half = np.where(rng.random(2) < 0.3, 0.0, rng.uniform(0.0, 12.0, 2))
+        peak = 10 ** rng.uniform(1, 5, 2)
+        if rng.random() < 0.25:  # twins: the sum is symmetric, its least values come in equal pairs
+            se2[1], half[1], peak[1] = se2[0], half[0], peak[0]
+        d = rng.uniform(0.0, 25.0) if rng.random() < 0.9 else 0.0
+        ti, tj = profile_terms(se2[0], half[0]), profile_terms(se2[1], half[1])
+        v = [profile_at(d * k / 32.0, peak[0], half[0], ti) + profile_at(d - d * k / 32.0, peak[1], half[1], tj)
+             for k in range(33)]
+        k = saddle_search(d, peak[0], half[0], ti, peak[1], half[1], tj, a, b, lows)
+        assert k == int(np.argmin(v)), (k, int(np.argmin(v)))
+        assert a[k] + b[k] == v[k]
+        n_inner += 0 < k < 32
+    assert n_inner > 100  # interior saddles, not just the ends
+
+
 def test_consistency_nis_equals_the_rotation_vector_quadratic_form():
     """kernels.sensor.consistency_nis = δθᵀ C⁻¹ δθ with δθ the rotation vector of q_est* ⊗ q_true (scipy's
     rotation vector, numpy's solve), for any sign of either quaternion; a singular covariance gives inf."""

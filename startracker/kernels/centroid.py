@@ -30,7 +30,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["THEORY_COLUMNS", "spot_theory", "candidate_pairs", "centroid_detections"]
+__all__ = ["THEORY_COLUMNS", "spot_theory", "candidate_pairs", "profile_terms", "profile_at", "saddle_search",
+           "centroid_detections"]
 
 THEORY_COLUMNS = ("p_det", "ph_along", "ph_cross", "bg_along", "bg_cross", "lock_along", "lock_cross",
                   "var_along", "var_cross", "cap", "var_cap", "area", "peak")
@@ -410,15 +411,108 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
 
 
 @njit(cache=True)
-def _profile(s, peak, se2, half):
-    """Expected signal (e⁻) of a spot at distance ``s`` px from its centre along the line to a neighbour: a
-    Gaussian of variance ``se2`` smeared over a streak of half length ``half`` along that line (its projection),
-    scaled to ``peak`` at the centre."""
+def profile_terms(se2, half):
+    """The constants of one spot's expected profile along the line to a neighbour (:func:`profile_at`): a Gaussian
+    of variance ``se2`` px² smeared over a streak of half length ``half`` px along that line (its projection).
+
+    Returns
+    -------
+    tuple (still, k, den)
+        ``still`` when ``half < 10⁻³ σ_e`` (then ``k = 2 se2``, ``den = 1``), else ``k = 1 / (√2 σ_e)`` and
+        ``den = 2 erf(half k)``.
+    """
     se = math.sqrt(se2)
     if half < 1e-3 * se:
-        return peak * math.exp(-s * s / (2.0 * se2))
+        return True, 2.0 * se2, 1.0
     k = 1.0 / (math.sqrt(2.0) * se)
-    return peak * (math.erf((s + half) * k) - math.erf((s - half) * k)) / (2.0 * math.erf(half * k))
+    return False, k, 2.0 * math.erf(half * k)
+
+
+@njit(cache=True)
+def profile_at(s, peak, half, terms):
+    """Expected signal (e⁻) of a spot at distance ``s`` px (>= 0) from its centre along the line to a neighbour,
+    ``peak`` e⁻ at the centre: ``peak exp(−s² / (2 se2))`` when still, else
+    ``peak (erf((s + half) k) − erf((s − half) k)) / den`` (``terms`` from :func:`profile_terms`). It falls
+    with ``s``."""
+    if terms[0]:
+        return peak * math.exp(-s * s / terms[1])
+    k = terms[1]
+    return peak * (math.erf((s + half) * k) - math.erf((s - half) * k)) / terms[2]
+
+
+@njit(cache=True)
+def saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, lows):
+    """The saddle of two spots' summed profiles: the least of ``a[k] + b[k]`` over the 33 points ``s = d k / 32``
+    of the segment between their centres, the first of equals, with ``a[k] = profile_at(s, peak_i, …)`` and
+    ``b[k] = profile_at(d − s, peak_j, …)``.
+
+    Found by bisection with bounds rather than by evaluating every point: spot i's profile falls and spot j's
+    rises along the segment, so between two evaluated points the sum is at least i's value at the right one plus
+    j's at the left one. A span whose bound exceeds the least value found by a margin (10⁻⁹ of the summed peaks,
+    far above the profiles' rounding: erf to an ulp over ``den >= 2 erf(10⁻³ / √2)``) holds neither a smaller
+    value nor an equal one, so the index is the exhaustive search's, bit for bit, at about half the evaluations.
+
+    Parameters
+    ----------
+    d : float
+        Distance between the centres, px.
+    peak_i, peak_j : float
+        Expected peaks, e⁻.
+    half_i, half_j : float
+        Streak half lengths projected on the segment, px.
+    terms_i, terms_j : tuple
+        :func:`profile_terms` of the two spots.
+    a, b : ndarray, shape (33,)
+        Scratch; on return ``a[k]``, ``b[k]`` hold the two profiles at the index found (and at the other
+        evaluated points).
+    lows : ndarray of int64, shape (24,)
+        Scratch: the spans' left ends.
+
+    Returns
+    -------
+    int
+        The index k in [0, 32].
+    """
+    for k in (0, 16, 32):
+        s = d * k / 32.0
+        a[k] = profile_at(s, peak_i, half_i, terms_i)
+        b[k] = profile_at(d - s, peak_j, half_j, terms_j)
+    best_k = 0
+    best = a[0] + b[0]
+    for k in (16, 32):
+        v = a[k] + b[k]
+        if v < best:
+            best = v
+            best_k = k
+    margin = 1e-9 * (peak_i + peak_j)
+    lows[0] = 0
+    lows[1] = 16
+    n_iv = 2
+    w = 16
+    while w > 1:
+        h = w // 2
+        m = n_iv  # the children are written after the parents, then moved down
+        for t in range(n_iv):
+            lo = lows[t]
+            if a[lo + w] + b[lo] > best + margin:
+                continue
+            k = lo + h
+            s = d * k / 32.0
+            a[k] = profile_at(s, peak_i, half_i, terms_i)
+            b[k] = profile_at(d - s, peak_j, half_j, terms_j)
+            v = a[k] + b[k]
+            if v < best or (v == best and k < best_k):
+                best = v
+                best_k = k
+            if h > 1:  # spans of one step have no point inside
+                lows[m] = lo
+                lows[m + 1] = k
+                m += 2
+        for t in range(n_iv, m):
+            lows[t - n_iv] = lows[t]
+        n_iv = m - n_iv
+        w = h
+    return best_k
 
 
 @njit(cache=True)
@@ -431,15 +525,16 @@ def _signal_variance(p, pr, f2):
 
 
 @njit(cache=True)
-def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b, thr_e, f2):
+def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b, thr_e, f2, terms_i, terms_j, a, b,
+                       lows):
     """Probability that two spots ``d`` px apart join into one 8-connected component above the threshold.
 
-    The summed expected profile of the two spots is lowest at the saddle between them (evaluated at 33 points
-    of the segment); a pixel there joins the components when its value S, with the noise of that signal (the
-    variance model of :func:`spot_theory`'s peak: intensified photon clumping and splash, or shot noise, plus the
-    background), exceeds the threshold T. The saddle falls between pixel centres, so the two pixels straddling it
-    give two about independent chances: ``1 − (1 − Φ((S − T) / σ_S))²``, near 1 where each spot alone reaches past
-    the saddle, 0 far beyond.
+    The summed expected profile of the two spots is lowest at the saddle between them (:func:`saddle_search`);
+    a pixel there joins the components when its value S, with the noise of that signal (the variance model of
+    :func:`spot_theory`'s peak: intensified photon clumping and splash, or shot noise, plus the background),
+    exceeds the threshold T. The saddle falls between pixel centres, so the two pixels straddling it give two
+    about independent chances: ``1 − (1 − Φ((S − T) / σ_S))²``, near 1 where each spot alone reaches past the
+    saddle, 0 far beyond.
 
     Parameters
     ----------
@@ -457,18 +552,12 @@ def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b,
         Threshold above the background, e⁻.
     f2 : float
         Excess noise factor squared.
+    terms_i, terms_j, a, b, lows
+        :func:`profile_terms` of the two spots and :func:`saddle_search`'s scratch.
     """
-    best_s = 0.0
-    best = 1e300
-    for k in range(33):
-        s = d * k / 32.0
-        v = _profile(s, peak_i, pair_i[0], half_i) + _profile(d - s, peak_j, pair_j[0], half_j)
-        if v < best:
-            best = v
-            best_s = s
-    pi = _profile(best_s, peak_i, pair_i[0], half_i)
-    pj = _profile(d - best_s, peak_j, pair_j[0], half_j)
-    var = var_b + _signal_variance(pi, pair_i, f2) + _signal_variance(pj, pair_j, f2)
+    k = saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, lows)
+    best = a[k] + b[k]
+    var = var_b + _signal_variance(a[k], pair_i, f2) + _signal_variance(b[k], pair_j, f2)
     # the saddle falls between pixel centres: an 8-connected path can cross it through either of the two pixels
     # that straddle it, two about independent chances
     miss = 1.0 - _ndtr((best - thr_e) / math.sqrt(var))
@@ -497,6 +586,9 @@ def _touching(det, reach, pair, k_sigma, f2):
     if n < 2:
         return parent, touched
     col, order, start = _columns(x, 2.0 * far_max)
+    a_s = np.empty(33)  # scratch of the saddle search
+    b_s = np.empty(33)
+    lows = np.empty(24, dtype=np.int64)
     for a in range(n):
         i = order[a]
         stop = start[col[i] + 2]  # the end of the next column
@@ -519,17 +611,20 @@ def _touching(det, reach, pair, k_sigma, f2):
             u = pair[i, 5] + pair[j, 5]
             u = u - math.floor(u)
             # Exact shortcut for the many pairs that cannot join: the saddle is at most the summed profile at the
-            # midpoint (one of _merge_probability's 33 points); below the threshold, its z-score is at most that
+            # midpoint (one of saddle_search's 33 points); below the threshold, its z-score is at most that
             # value's with the largest signal variance (profiles never exceed their peaks), and the join
             # probability at most the one of that bound. A draw above the bound decides "apart" without the search.
             p_i, p_j = det[i, 5], det[j, 5]
-            s_mid = _profile(0.5 * d, p_i, pair[i, 0], half_i) + _profile(0.5 * d, p_j, pair[j, 0], half_j)
+            ti = profile_terms(pair[i, 0], half_i)
+            tj = profile_terms(pair[j, 0], half_j)
+            s_mid = profile_at(0.5 * d, p_i, half_i, ti) + profile_at(0.5 * d, p_j, half_j, tj)
             if s_mid < thr_e:
                 var_max = var_b + _signal_variance(p_i, pair[i], f2) + _signal_variance(p_j, pair[j], f2)
                 miss = 1.0 - _ndtr((s_mid - thr_e) / math.sqrt(var_max))
                 if u >= 1.0 - miss * miss:
                     continue
-            p = _merge_probability(d, p_i, p_j, pair[i], pair[j], half_i, half_j, var_b, thr_e, f2)
+            p = _merge_probability(d, p_i, p_j, pair[i], pair[j], half_i, half_j, var_b, thr_e, f2, ti, tj, a_s, b_s,
+                                   lows)
             if u < p:
                 touched[i] = True
                 touched[j] = True

@@ -508,8 +508,9 @@ def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, m
         b = np.empty((len(det), 3))
         r = np.empty((len(det), 3))
         for t in range(len(det)):
-            b[t] = v[det[t]]
-            r[t] = nav[navm[t]]
+            for a in range(3):  # element copies: a row assignment compiles numba's shape-check machinery
+                b[t, a] = v[det[t], a]
+                r[t, a] = nav[navm[t], a]
         rot = rotation_svd(b, r)
         nearest_two(rotate_all(rot, v), nav, cell_start, cell_stars, g, 3.0 * chord, dist, idx)
         det2, nav2, dm = select_matches(dist, idx, chord)
@@ -592,8 +593,9 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
         b = np.empty((len(det0), 3))
         r = np.empty((len(det0), 3))
         for t in range(len(det0)):
-            b[t] = v[det0[t]]
-            r[t] = nav[nav0[t]]
+            for a in range(3):  # element copies: a row assignment compiles numba's shape-check machinery
+                b[t, a] = v[det0[t], a]
+                r[t, a] = nav[nav0[t], a]
         rot = rotation_svd(b, r)
     dist = np.empty((n, 2))
     idx = np.empty((n, 2), dtype=np.int64)
@@ -621,8 +623,10 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
                                                              n_req, max_rounds, stable_fit, dist_g, idx_g)
             if ok_g and len(det_g) > len(det):
                 rot, det, navm, dm = rot_g, det_g, nav_g, dm_g
-                dist[:, :] = dist_g
-                idx[:, :] = idx_g
+                for q in range(n):
+                    for c in range(2):
+                        dist[q, c] = dist_g[q, c]
+                        idx[q, c] = idx_g[q, c]
     near = 0
     for q in range(n):
         if dist[q, 0] > chord and dist[q, 0] <= 3.0 * chord:
@@ -893,14 +897,17 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
                         continue
                     if h == hyp.shape[0]:
                         grown = np.empty((2 * h, 3), dtype=np.int64)
-                        grown[:h] = hyp
+                        for row in range(h):
+                            for col in range(3):
+                                grown[row, col] = hyp[row, col]
                         hyp = grown
                     hyp[h, 0], hyp[h, 1], hyp[h, 2] = a, b, c
                     h += 1
         if h == 0:
             continue
         lam = triangle_false_rate(ang, tol, i, j, k, float(n_nav), clumping) * rate[i] * rate[j] * rate[k]
-        b3[0], b3[1], b3[2] = v[i], v[j], v[k]
+        for ax in range(3):  # element copies: row assignments compile numba's shape-check machinery
+            b3[0, ax], b3[1, ax], b3[2, ax] = v[i, ax], v[j, ax], v[k, ax]
         n_ver = 0
         ver_n = np.empty(h, dtype=np.int64)
         ver_rms = np.empty(h)
@@ -910,7 +917,8 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
         ver_req = np.empty(h, dtype=np.int64)
         for hh in range(h):
             a, b, c = hyp[hh, 0], hyp[hh, 1], hyp[hh, 2]
-            r3[0], r3[1], r3[2] = nav[a], nav[b], nav[c]
+            for ax in range(3):
+                r3[0, ax], r3[1, ax], r3[2, ax] = nav[a, ax], nav[b, ax], nav[c, ax]
             rot = rotation_svd(b3, r3)
             if n > 3:
                 # The pyramid: a fourth detection of the pool pointing at a catalog star.
@@ -935,10 +943,13 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
             if ok:
                 ver_n[n_ver] = len(det_v)
                 ver_rms[n_ver] = rms_v
-                ver_rot[n_ver] = rot_v
+                for ax in range(3):
+                    for ay in range(3):
+                        ver_rot[n_ver, ax, ay] = rot_v[ax, ay]
                 ver_req[n_ver] = req_v
-                ver_det[n_ver, : len(det_v)] = det_v
-                ver_nav[n_ver, : len(det_v)] = nav_v
+                for col in range(len(det_v)):
+                    ver_det[n_ver, col] = det_v[col]
+                    ver_nav[n_ver, col] = nav_v[col]
                 n_ver += 1
         if n_ver == 0:
             continue

@@ -98,7 +98,9 @@ def stable_argsort_into(values, order):
             hi = v
     scale = (n - 1) / (hi - lo) if hi > lo else 0.0
     if not (scale < np.inf):  # a range so small (subnormal) its inverse overflows
-        order[:] = np.argsort(values, kind="mergesort")
+        fallback = np.argsort(values, kind="mergesort")
+        for i in range(n):
+            order[i] = fallback[i]
         return
     start = np.zeros(n + 1, dtype=np.int64)
     bins = np.empty(n, dtype=np.int64)

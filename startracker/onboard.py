@@ -1037,9 +1037,13 @@ class StarTrackerUnit:
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
         n_timing = float(np.sum(self._timing_n))
         timing_alarm = n_timing > 0 and float(np.sum(self._timing)) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
+        # the delivery's own mean: a drift that starts now is diluted tenfold in the window's mean, not here
+        z_sum = fusion.last_innovation_rad.sum(axis=0)
+        delivery_chi2 = float(z_sum @ np.linalg.solve(fusion.last_innovation_cov_rad2.sum(axis=0), z_sum))
         self._monitor_slot = (self._monitor_slot + 1) % MONITOR_DELIVERIES
         self._monitor_filled += 1
-        if total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3 or timing_alarm:
+        if (total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3
+                or delivery_chi2 > MONITOR_MEAN_CHI2_3 or timing_alarm):
             ekf = fusion.ekf
             p_bb = np.diag(ekf.P[3:, 3:])
             ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))

@@ -140,6 +140,7 @@ MONITOR_RECOVERY_DELIVERIES = 5  # after an alarm, the estimate is valid again o
 MONITOR_FALSE_ALARM_P = 1e-4
 _MONITOR_Z = 3.7190164854556804  # the standard normal quantile at 1 - MONITOR_FALSE_ALARM_P
 MONITOR_MEAN_CHI2_3 = chi2_3_threshold(MONITOR_FALSE_ALARM_P)
+MONITOR_DELIVERY_MEAN = True  # also test the newest delivery's own mean innovation (see _monitor_innovations)
 # Timing test: a frame's timestamp error δt moves all its samples by ω δt, along the body rate. The innovations'
 # component along ω, weighted and summed over a delivery, is χ²(1) without it (:meth:`StarTrackerUnit._timing_statistic`);
 # summed over the monitor's window, χ²(n). Below this rate, s⁻¹ (0.1 °/s) a timestamp error moves nothing.
@@ -1043,7 +1044,7 @@ class StarTrackerUnit:
         self._monitor_slot = (self._monitor_slot + 1) % MONITOR_DELIVERIES
         self._monitor_filled += 1
         if (total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3
-                or delivery_chi2 > MONITOR_MEAN_CHI2_3 or timing_alarm):
+                or (MONITOR_DELIVERY_MEAN and delivery_chi2 > MONITOR_MEAN_CHI2_3) or timing_alarm):
             ekf = fusion.ekf
             p_bb = np.diag(ekf.P[3:, 3:])
             ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))

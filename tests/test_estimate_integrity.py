@@ -246,3 +246,30 @@ def test_a_clipped_gyro_is_not_taken_for_the_body_acceleration(monkeypatch):
     free = [a for t, a in seen if 0.5 <= t < 1.9]
     assert clipped and all(a is None for a in clipped)
     assert free and all(a is not None for a in free)
+
+
+def test_the_newest_delivery_mean_catches_a_drift_as_it_starts(monkeypatch):
+    """A soak episode (random torques, random faults; the 10⁶-step soak's chunk 17): a 0.12 °/s gyro bias step
+    early in its span at 10.51 s, which neither look of the jump monitor finds, drifts the roll by ~35″ per frame. The
+    newest delivery's mean innovation flags the estimate invalid before its error leaves the covariance; with only the
+    window's mean (the drift diluted tenfold) the estimate is confidently wrong at 10.8 s."""
+    def episode():
+        env = gym.make("startracker/AgileSlew-v0", max_episode_s=30.0, random_faults_per_min=6.0)
+        obs, info = env.reset(seed=17_000_061)
+        rng = np.random.default_rng(17)
+        rng.uniform(-1, 1, (3000, 4))  # the actions of the chunk's earlier episodes
+        ce = []
+        for _ in range(110):
+            obs, r, te, tr, info = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+            ce.append(bool(info["estimate_confidently_wrong"]))
+        faults = [f for f in env.unwrapped.avionics.faults.faults if f.kind == "gyro_bias_step"]
+        env.close()
+        return ce, faults
+
+    ce, faults = episode()
+    assert any(f.t_start_s == pytest.approx(10.51, abs=0.01) and f.severity == pytest.approx(0.12, abs=0.01)
+               for f in faults)
+    assert not any(ce)
+    monkeypatch.setattr(onboard, "MONITOR_DELIVERY_MEAN", False)
+    ce_off, _ = episode()
+    assert any(ce_off)

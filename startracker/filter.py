@@ -598,25 +598,21 @@ class DelayedFusion:
             q_meas_body_to_icrs, t_meas_s, covariance_rad2 = (
                 q_meas_body_to_icrs[fresh], t_meas_s[fresh], covariance_rad2[fresh])
         t_last = float(t_meas_s[-1])
-        # the buffered intervals up to the last sample, the one covering it split at its instant
-        j = int(np.searchsorted(self._tg, t_last, side="left"))
-        if j == len(self._tg):
+        wg, tg, rn, j = self._intervals_to(t_last)
+        if wg is None:
             if t_last > self.ekf.t_s:
                 raise ValueError(f"t_meas_s must not be later than the last gyro interval ({self.t_s}), got {t_last}")
             # all samples at the filter's own instant and nothing buffered: an update without propagation
-            wg = (np.asarray(self.ekf.omega_body, dtype=np.float64) + self.ekf.bias_rad_s).reshape(1, 3)
-            acc = self.ekf.process(wg, np.array([t_last]), q_meas_body_to_icrs, t_meas_s, covariance_rad2,
-                                   validate=False)
+            acc = self.ekf.process(self._held_rate(), np.array([t_last]), q_meas_body_to_icrs, t_meas_s,
+                                   covariance_rad2, validate=False)
             accepted[fresh] = acc
             self.last_nis[fresh] = self.ekf.last_nis
             self.last_innovation_rad = self.ekf.last_innovation_rad
             self.last_innovation_cov_rad2 = self.ekf.last_innovation_cov_rad2
             self._now = None
             return accepted
-        tg = self._tg[: j + 1].copy()
-        tg[j] = t_last
-        acc = self.ekf.process(self._wg[: j + 1], tg, q_meas_body_to_icrs, t_meas_s, covariance_rad2,
-                               rate_noise_rad2_s=self._rn[: j + 1], validate=False)
+        acc = self.ekf.process(wg, tg, q_meas_body_to_icrs, t_meas_s, covariance_rad2, rate_noise_rad2_s=rn,
+                               validate=False)
         if n_fresh == m:  # the usual case: the filter's own arrays, no masking
             accepted = acc
             self.last_nis = self.ekf.last_nis
@@ -651,13 +647,9 @@ class DelayedFusion:
         if m == 0:
             return z, s
         t_last = float(t_meas_s[-1])
-        j = int(np.searchsorted(self._tg, t_last, side="left"))
-        if j == len(self._tg):
-            wg = (np.asarray(ekf.omega_body, dtype=np.float64) + ekf.bias_rad_s).reshape(1, 3)
-            tg, rn = np.array([max(t_last, ekf.t_s)]), np.zeros((1, 3))
-        else:
-            wg, tg, rn = self._wg[: j + 1], self._tg[: j + 1].copy(), self._rn[: j + 1]
-            tg[j] = t_last
+        wg, tg, rn, _ = self._intervals_to(t_last)
+        if wg is None:  # nothing buffered after the filter's time: the held rate
+            wg, tg, rn = self._held_rate(), np.array([max(t_last, ekf.t_s)]), np.zeros((1, 3))
         q = np.array(ekf.q_body_to_icrs, dtype=np.float64)
         b = np.array(ekf.bias_rad_s, dtype=np.float64)
         P = np.array(ekf.P, dtype=np.float64)
@@ -666,6 +658,20 @@ class DelayedFusion:
                       ekf.sigma_u, -1.0, np.empty(m, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)),
                       np.empty(3), rn, np.empty(m), z, s)
         return z, s
+
+    def _intervals_to(self, t_last: float):
+        """The buffered gyro intervals up to ``t_last``, the one covering it split at its instant: ``(wg, tg, rn, j)``
+        with ``j`` the covering interval's index; ``(None, None, None, len)`` when no buffered interval reaches it."""
+        j = int(np.searchsorted(self._tg, t_last, side="left"))
+        if j == len(self._tg):
+            return None, None, None, j
+        tg = self._tg[: j + 1].copy()
+        tg[j] = t_last
+        return self._wg[: j + 1], tg, self._rn[: j + 1], j
+
+    def _held_rate(self) -> np.ndarray:
+        """The filter's last gyro rate (bias included), (1, 3): what propagates when nothing is buffered."""
+        return (np.asarray(self.ekf.omega_body, dtype=np.float64) + self.ekf.bias_rad_s).reshape(1, 3)
 
     def current(self):
         """The estimate at :attr:`t_s`: :attr:`ekf` propagated through the buffered intervals.

@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, fields, replace
+from statistics import NormalDist
 
 import numpy as np
 
@@ -145,7 +146,10 @@ MONITOR_DELIVERY_MEAN = True  # also test the newest delivery's own mean innovat
 # component along ω, weighted and summed over a delivery, is χ²(1) without it (:meth:`StarTrackerUnit._timing_statistic`);
 # summed over the monitor's window, χ²(n). Below this rate, s⁻¹ (0.1 °/s) a timestamp error moves nothing.
 TIMING_MIN_RATE_RAD_S = float(np.radians(0.1))
-MONITOR_TIMING_CHI2_1 = 15.136705226623606  # χ²(1) quantile at 1 - MONITOR_FALSE_ALARM_P (scipy.stats.chi2, tested)
+MONITOR_TIMING_CHI2_1 = NormalDist().inv_cdf(1.0 - MONITOR_FALSE_ALARM_P / 2.0) ** 2  # χ²(1) quantile, z² two-sided
+# After a timing alarm, valid again only once the window's timing sum is below χ²(n) at this standard-normal quantile
+# (0: the median, evidence of no timing error rather than too little to alarm).
+TIMING_RECOVERY_Z = 0.0
 # Gyro jump monitor: a rigid body's rate is continuous (finite torques) and, within one observed span (one command
 # held), smooth; a step in the readings is a gyro that changed (a bias jump), found by a GLR test over the previous
 # and the current span (:func:`startracker.kernels.filter.gyro_jump_statistic`) at this false-alarm probability per
@@ -1021,9 +1025,10 @@ class StarTrackerUnit:
         covariance so that the filter relearns the bias; valid again once :data:`MONITOR_RECOVERY_DELIVERIES`
         deliveries since have passed.
 
-        Three statistics of the window (:func:`startracker.kernels.filter.innovation_window`): the spread, Σ NIS
+        Statistics of the window (:func:`startracker.kernels.filter.innovation_window`): the spread, Σ NIS
         against χ²(3 n), and the mean, (Σz)ᵀ (ΣS)⁻¹ (Σz) against χ²(3): a bias drags the innovations one way, and
-        the mean sees a steady offset √n times sooner than the spread; and the timing test of each delivery before
+        the mean sees a steady offset √n times sooner than the spread; the same mean over the newest delivery alone
+        (:data:`MONITOR_DELIVERY_MEAN`), where a drift that has just begun is not diluted by the window; and the timing test of each delivery before
         it was fused (:meth:`_timing_statistic`), summed against χ²(n): a frame whose timestamp is off moves all its
         samples along ω, a frame's worth of shared error the filter would otherwise average as if independent (a
         single delivery beyond χ²(1) is refused before fusion, in :meth:`_deliver`)."""
@@ -1063,7 +1068,8 @@ class StarTrackerUnit:
         # A timestamp fault lasts: after a timing alarm the estimate stays invalid until the window shows no sign of
         # one (its timing sum below χ²(n)'s median), not merely none strong enough to alarm again.
         if self._timing_suspect and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES and (
-                n_timing == 0 or float(np.sum(self._timing)) <= _chi2_quantile_wilson_hilferty(n_timing, 0.0)):
+                n_timing == 0
+                or float(np.sum(self._timing)) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
             self._timing_suspect = False
 
     def _timing_statistic(self, qm, tm, cm) -> tuple[float, float]:

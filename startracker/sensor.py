@@ -754,10 +754,11 @@ class StarTracker:
             base["skipped"] = skipped
         # Residuals larger than the centroid model claims (streaks in stray light, a rate beyond the model): the
         # instant's covariance grows by its a-posteriori variance factor, never shrinks (2 n - 3 degrees of freedom).
-        n_sel = n_stars[sel].astype(np.float64)
-        factor = (rms_all[sel] / self._residual_expected_arcsec) ** 2 / np.maximum(1.0 - 1.5 / n_sel, 0.25)
-        if self.scale_by_residuals and np.any(factor > 1.0):
-            cov_sol = cov_sol * np.maximum(factor, 1.0)[:, None, None]
+        if self.scale_by_residuals:
+            dof_share = np.maximum(1.0 - 1.5 / n_stars[sel].astype(np.float64), 0.25)
+            factor = (rms_all[sel] / self._residual_expected_arcsec) ** 2 / dof_share
+            if np.any(factor > 1.0):
+                cov_sol = cov_sol * np.maximum(factor, 1.0)[:, None, None]
         # the rows of the frame's own copies: no sample shares memory with another or with the tracker
         samples = list(map(AttitudeSample, t_s.tolist(), q_sol, cov_sol, n_stars[sel].tolist()))
         new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)

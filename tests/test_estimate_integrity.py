@@ -273,3 +273,37 @@ def test_the_newest_delivery_mean_catches_a_drift_as_it_starts(monkeypatch):
     monkeypatch.setattr(onboard, "MONITOR_DELIVERY_MEAN", False)
     ce_off, _ = episode()
     assert any(ce_off)
+
+
+def test_after_a_timing_alarm_the_estimate_stays_invalid_while_the_jitter_lasts(monkeypatch):
+    """0.6 ms of time-tag jitter during random slews (seed 2): after the first refused frame, the estimate stays
+    invalid until the fault ends (the window's timing sum must fall below χ²(n)'s median, evidence of no timing
+    error) and is valid again within 1.5 s of its end. Recovering as soon as the sum is merely under the alarm level
+    vouches for the jittered estimate at about half of those steps. The χ²(1) threshold is scipy's."""
+    from scipy.stats import chi2
+
+    assert onboard.MONITOR_TIMING_CHI2_1 == pytest.approx(chi2.ppf(1 - onboard.MONITOR_FALSE_ALARM_P, 1), rel=1e-12)
+
+    def invalid_share():
+        env = gym.make("startracker/AgileSlew-v0", max_episode_s=9.0,
+                       faults=[dict(kind="time_jitter", t_start_s=3.0, duration_s=4.0, severity=0.6)])
+        obs, info = env.reset(seed=2)
+        rng = np.random.default_rng(2)
+        first, during, after = None, [], []
+        done = False
+        while not done:
+            obs, r, te, tr, info = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+            done = te or tr
+            if first is None and env.unwrapped.avionics.timing_alarms_total:
+                first = info["time_s"]
+            if first is not None and first < info["time_s"] <= 7.0:
+                during.append(not info["estimate_valid"])
+            if info["time_s"] >= 8.5:
+                after.append(info["estimate_valid"])
+        env.close()
+        return float(np.mean(during)), all(after)
+
+    share, valid_after = invalid_share()
+    assert share == 1.0 and valid_after
+    monkeypatch.setattr(onboard, "TIMING_RECOVERY_Z", 3.719)  # recover at the alarm level
+    assert invalid_share()[0] < 0.8

@@ -735,61 +735,28 @@ class StarTracker:
         # Innovation: solved vs predicted attitude at each solved instant.
         if nis > self.innovation_gate:
             return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", [], **base)
-        t_s = t_exp[sel]
-        q_sol = q_all[sel]
-        cov_sol = cov_all[sel]
         # Smoothness: an instant matched one exposure off (its spots taken for the neighbour's) sits on the trajectory
         # at the wrong time. Neither the residual nor the mean innovation over many instants sees one such instant;
-        # its attitude against a polynomial through the other instants does.
-        keep = self._smooth_instants(t_s, q_pred_all[sel], q_sol, cov_sol)
-        if keep is not None:
-            n_off = n_ok - len(keep)
+        # its attitude against a polynomial through the other instants does (kernels.sensor.smooth_instants). Then
+        # residuals larger than the centroid model claims (streaks in stray light, a rate beyond the model): the
+        # instant's covariance grows by its a-posteriori variance factor, never shrinks (2 n - 3 degrees of freedom).
+        # Both compiled, on the frame's own copies: no sample shares memory with another or with the tracker.
+        n_off, kept, t_s, q_sol, cov_sol, n_sol = sensor_kernels.accept_instants(
+            sel, t_exp, q_pred_all, q_all, cov_all, rms_all, n_stars, self.instant_gate, self._residual_expected_arcsec,
+            self.scale_by_residuals)
+        if n_off:
             if 3 * n_off > n_ok:
                 return _Attempt(False, f"{n_off}/{n_ok} instants off a smooth motion (matched an exposure off)", [],
                                 **base)
-            off = sorted(set(sel.tolist()) - set(sel[keep].tolist()))
-            sel, t_s, q_sol, cov_sol = sel[keep], t_s[keep], q_sol[keep], cov_sol[keep]
-            n_ok = len(sel)
-            skipped = tuple(sorted(set(skipped) | set(off)))
+            n_ok = len(kept)
+            skipped = tuple(sorted(set(range(len(t_exp))) - set(kept.tolist())))
             base["skipped"] = skipped
-        # Residuals larger than the centroid model claims (streaks in stray light, a rate beyond the model): the
-        # instant's covariance grows by its a-posteriori variance factor, never shrinks (2 n - 3 degrees of freedom).
-        if self.scale_by_residuals:
-            dof_share = np.maximum(1.0 - 1.5 / n_stars[sel].astype(np.float64), 0.25)
-            factor = (rms_all[sel] / self._residual_expected_arcsec) ** 2 / dof_share
-            if np.any(factor > 1.0):
-                cov_sol = cov_sol * np.maximum(factor, 1.0)[:, None, None]
-        # the rows of the frame's own copies: no sample shares memory with another or with the tracker
-        samples = list(map(AttitudeSample, t_s.tolist(), q_sol, cov_sol, n_stars[sel].tolist()))
+        samples = list(map(AttitudeSample, t_s.tolist(), q_sol, cov_sol, n_sol.tolist()))
         new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)
         status = f"tracking {n_ok}/{len(t_exp)} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
         if skipped:
             status += f", skipped instants {list(skipped)}"
         return _Attempt(True, status, samples, state=new_state, **base)
-
-    def _smooth_instants(self, t_s, q_pred, q_sol, cov_sol):
-        """Indices of the solved instants that lie on a smooth motion, or None when all do (or there are too few
-        to tell: fewer than 3). The rotations from the predicted to the solved attitudes (the prediction's error:
-        smooth in time, whatever the motion) are fitted; the instant with the largest leave-one-out χ² against a
-        polynomial in time through the others (:func:`startracker.kernels.sensor.instant_deleted_chi2`: quadratic from 6 instants,
-        a line from 4) is removed while it exceeds ``instant_gate``; three instants that fail a line keep none."""
-        n = len(t_s)
-        if n < 3 or self.instant_gate == math.inf:
-            return None
-        if n == 3:
-            # a line through two instants checks the third: one degree of freedom, the same χ² for all three, so an
-            # inconsistency cannot be placed: none of them is reported
-            chi2 = sensor_kernels.instant_deleted_chi2(q_pred, q_sol, cov_sol, t_s, 1)
-            return None if not chi2[0] > self.instant_gate else np.zeros(0, dtype=np.int64)
-        idx = np.arange(n)
-        while len(idx) >= 4:
-            degree = 2 if len(idx) >= 6 else 1
-            chi2 = sensor_kernels.instant_deleted_chi2(q_pred[idx], q_sol[idx], cov_sol[idx], t_s[idx], degree)
-            worst = int(np.argmax(chi2))
-            if not chi2[worst] > self.instant_gate:
-                break
-            idx = np.delete(idx, worst)
-        return None if len(idx) == n else idx
 
     def _track_stages(self, xy, t_exp, q0, t_ref, omega, alpha, r, cov_theta, cov_w, cov_a):
         """The compiled frame's results through the public stages (a camera with its own projection, cKDTree)."""

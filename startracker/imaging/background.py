@@ -197,6 +197,23 @@ class FalseObjects:
 
 _NONE = FalseObjects(*(np.zeros(shape) for shape in ((0, 2), (0, 2), 0, (0, 2), (0, 2), 0)))
 _AREA_CACHE: dict = {}
+_SIZE_CACHE: dict = {}
+# the log-uniform debris speed, 100-20000 px/s (numpy's log, as the per-frame formula had it)
+_LOG_SPEED_LO = np.log(100.0)
+_LOG_SPEED_SPAN = np.log(20000.0) - np.log(100.0)
+
+
+def _detector_size(cam) -> np.ndarray:
+    """``(width, height)`` of a (frozen) camera's detector as a read-only float array, px (once per camera)."""
+    hit = _SIZE_CACHE.get(id(cam))
+    if hit is not None and hit[0] is cam:
+        return hit[1]
+    size = np.array(cam.resolution, dtype=float)
+    size.setflags(write=False)
+    if len(_SIZE_CACHE) > 64:
+        _SIZE_CACHE.clear()
+    _SIZE_CACHE[id(cam)] = (cam, size)
+    return size
 
 
 def _detector_area_cm2(cam) -> float:
@@ -229,19 +246,24 @@ def draw_false_objects(scene: Scene, model: SensorModel, rng: np.random.Generato
     n_c = int(rng.poisson(model.cosmic_ray_rate_per_cm2_s * area_cm2 * scene.plan.integration_window_s))
     if n_d == 0 and n_c == 0:
         return _NONE
-    w, h = cam.resolution
-    size = np.array([w, h], dtype=float)
-    u = rng.random((n_d, 6))  # position (2), direction, log-speed, magnitude, unused
-    xy0 = u[:, :2] * size - 0.5
-    ang = 2 * np.pi * u[:, 2]
-    speed = np.exp(np.log(100.0) + (np.log(20000.0) - np.log(100.0)) * u[:, 3])
-    vel = np.stack([np.cos(ang), np.sin(ang)], axis=1) * speed[:, None]
-    vmag = model.debris_vmag_range[0] + (model.debris_vmag_range[1] - model.debris_vmag_range[0]) * u[:, 4]
-    v = rng.random((n_c, 4))  # position (2), direction, length
-    start = v[:, :2] * size - 0.5
-    a = 2 * np.pi * v[:, 2]
-    end = start + np.stack([np.cos(a), np.sin(a)], axis=1) * (COSMIC_MAX_LEN_PX * v[:, 3])[:, None]
-    charge = model.cosmic_ray_median_e * np.exp(0.6 * rng.standard_normal(n_c))
+    size = _detector_size(cam)
+    if n_d:
+        u = rng.random((n_d, 6))  # position (2), direction, log-speed, magnitude, unused
+        xy0 = u[:, :2] * size - 0.5
+        ang = 2 * np.pi * u[:, 2]
+        speed = np.exp(_LOG_SPEED_LO + _LOG_SPEED_SPAN * u[:, 3])
+        vel = np.stack([np.cos(ang), np.sin(ang)], axis=1) * speed[:, None]
+        vmag = model.debris_vmag_range[0] + (model.debris_vmag_range[1] - model.debris_vmag_range[0]) * u[:, 4]
+    else:  # nothing drawn for no debris: the shared empty arrays
+        xy0, vel, vmag = _NONE.debris_xy0, _NONE.debris_velocity_px_s, _NONE.debris_vmag
+    if n_c:
+        v = rng.random((n_c, 4))  # position (2), direction, length
+        start = v[:, :2] * size - 0.5
+        a = 2 * np.pi * v[:, 2]
+        end = start + np.stack([np.cos(a), np.sin(a)], axis=1) * (COSMIC_MAX_LEN_PX * v[:, 3])[:, None]
+        charge = model.cosmic_ray_median_e * np.exp(0.6 * rng.standard_normal(n_c))
+    else:
+        start, end, charge = _NONE.cosmic_start_xy, _NONE.cosmic_end_xy, _NONE.cosmic_e
     return FalseObjects(xy0, vel, vmag, start, end, charge)
 
 

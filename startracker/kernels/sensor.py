@@ -1,5 +1,5 @@
-"""Star-tracker bookkeeping kernels: the lock's innovation test, the instants' smoothness test and the consistency
-verdict, no checks.
+"""Star-tracker bookkeeping kernels: the lock's innovation test, the instants' smoothness test, the accepted
+instants of a tracked frame and the consistency verdict, no checks.
 
 The callers are :class:`startracker.sensor.StarTracker` (the innovation χ² of a tracked frame) and the verdicts of
 :mod:`startracker.onboard` (:func:`~startracker.onboard.judge_samples`, :func:`~startracker.onboard.judge_estimate`:
@@ -14,7 +14,7 @@ from numba import njit
 from startracker.kernels.algebra import mahalanobis3
 from startracker.kernels.rotations import relative_rotvec_rows
 
-__all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2"]
+__all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2", "smooth_instants", "accept_instants"]
 
 
 @njit(cache=True)
@@ -154,3 +154,154 @@ def instant_deleted_chi2(q_ref, q_sol, cov_sol, tau_s, degree):
         f = 1.0 / (1.0 - h)
         out[k] = mahalanobis3(s, resid[k, 0] * f, resid[k, 1] * f, resid[k, 2] * f)
     return out
+
+
+@njit(cache=True)
+def _argmax_first(v):
+    """``numpy.argmax`` of a non-empty 1-D array: the first NaN, else the first largest value."""
+    worst = 0
+    for i in range(v.shape[0]):
+        if v[i] != v[i]:
+            return i
+        if v[i] > v[worst]:
+            worst = i
+    return worst
+
+
+@njit(cache=True)
+def smooth_instants(q_pred, q_sol, cov_sol, tau_s, gate):
+    """The instants of a tracked frame that lie on a smooth motion (the tracker's smoothness test).
+
+    The rotations from the predicted to the solved attitudes (the prediction's error: smooth in time, whatever the
+    motion) are fitted: with more than three instants, the one with the largest leave-one-out χ²
+    (:func:`instant_deleted_chi2`: a quadratic in time from 6 instants, a line from 4) is removed while that χ²
+    exceeds ``gate`` and at least 4 remain. With three, a line through two checks the third (one degree of freedom,
+    the same χ² for all three): above the gate, none is kept. Fewer than three cannot be tested.
+
+    Parameters
+    ----------
+    q_pred, q_sol : ndarray, shape (n, 4)
+        Predicted and solved attitudes of the solved instants (non-zero).
+    cov_sol : ndarray, shape (n, 3, 3)
+        Covariances of the solved attitudes, body frame, rad².
+    tau_s : ndarray, shape (n,)
+        Times of the instants, s, increasing.
+    gate : float
+        χ² (3 degrees of freedom) above which an instant is off the smooth motion; ``inf`` disables the test.
+
+    Returns
+    -------
+    ndarray of int64, shape (m,)
+        Rows kept (ascending); all ``n`` rows when every instant passes or the test cannot tell.
+    """
+    n = tau_s.shape[0]
+    idx = np.arange(n)
+    if n < 3 or gate == np.inf:
+        return idx
+    if n == 3:
+        chi2 = instant_deleted_chi2(q_pred, q_sol, cov_sol, tau_s, 1)
+        return idx if not chi2[0] > gate else idx[:0]
+    m = n
+    while m >= 4:
+        degree = 2 if m >= 6 else 1
+        qp = np.empty((m, 4))
+        qs = np.empty((m, 4))
+        cs = np.empty((m, 3, 3))
+        ts = np.empty(m)
+        for k in range(m):
+            j = idx[k]
+            qp[k] = q_pred[j]
+            qs[k] = q_sol[j]
+            cs[k] = cov_sol[j]
+            ts[k] = tau_s[j]
+        chi2 = instant_deleted_chi2(qp, qs, cs, ts, degree)
+        worst = _argmax_first(chi2)
+        if not chi2[worst] > gate:
+            break
+        for k in range(worst, m - 1):
+            idx[k] = idx[k + 1]
+        m -= 1
+    return idx[:m].copy()
+
+
+@njit(cache=True)
+def accept_instants(sel, t_exp, q_pred, q_all, cov_all, rms_arcsec, n_stars, gate, residual_expected_arcsec, scale):
+    """The samples of a tracked frame that passed the lock tests: the smoothness test, then the covariance scaling.
+
+    The solved instants ``sel`` go through :func:`smooth_instants`; with ``scale``, each kept instant's covariance
+    grows by its a-posteriori variance factor ``max((rms / rms_expected)² / max(1 − 1.5 / n, 0.25), 1)`` (``n`` its
+    stars) when any instant's factor exceeds 1 (never shrinks).
+
+    Parameters
+    ----------
+    sel : ndarray of int64, shape (s,)
+        The solved instants (ascending).
+    t_exp : ndarray, shape (N,)
+        Exposure instants, s.
+    q_pred, q_all : ndarray, shape (N, 4)
+        Predicted and solved attitudes of all instants.
+    cov_all : ndarray, shape (N, 3, 3)
+        Covariances of the solutions, rad².
+    rms_arcsec : ndarray, shape (N,)
+        RMS residual of each instant, arcsec.
+    n_stars : ndarray of int64, shape (N,)
+        Stars of each instant's solution.
+    gate : float
+        :func:`smooth_instants`' χ² gate.
+    residual_expected_arcsec : float
+        RMS of a star's residual the centroid model expects, arcsec.
+    scale : bool
+        Apply the covariance scaling.
+
+    Returns
+    -------
+    n_off : int
+        Solved instants removed by the smoothness test.
+    kept : ndarray of int64, shape (m,)
+        Instants kept (ascending, a subset of ``sel``).
+    t_s : ndarray, shape (m,)
+    q : ndarray, shape (m, 4)
+    cov : ndarray, shape (m, 3, 3)
+        Scaled covariances, rad².
+    n : ndarray of int64, shape (m,)
+    """
+    s = sel.shape[0]
+    ts = np.empty(s)
+    qp = np.empty((s, 4))
+    qs = np.empty((s, 4))
+    cs = np.empty((s, 3, 3))
+    for k in range(s):
+        j = sel[k]
+        ts[k] = t_exp[j]
+        qp[k] = q_pred[j]
+        qs[k] = q_all[j]
+        cs[k] = cov_all[j]
+    keep = smooth_instants(qp, qs, cs, ts, gate)
+    m = keep.shape[0]
+    kept = np.empty(m, dtype=np.int64)
+    t_s = np.empty(m)
+    q = np.empty((m, 4))
+    cov = np.empty((m, 3, 3))
+    n = np.empty(m, dtype=np.int64)
+    factor = np.ones(m)
+    grow = False
+    for k in range(m):
+        j = sel[keep[k]]
+        kept[k] = j
+        t_s[k] = ts[keep[k]]
+        q[k] = qs[keep[k]]
+        cov[k] = cs[keep[k]]
+        n[k] = n_stars[j]
+        if scale:
+            dof_share = max(1.0 - 1.5 / float(n_stars[j]), 0.25)
+            ratio = rms_arcsec[j] / residual_expected_arcsec
+            f = ratio * ratio / dof_share
+            if f > 1.0:
+                factor[k] = f
+                grow = True
+    if grow:
+        for k in range(m):
+            for a in range(3):
+                for b in range(3):
+                    cov[k, a, b] *= factor[k]
+    return s - m, kept, t_s, q, cov, n

@@ -142,6 +142,13 @@ class StarCatalog:
     def __len__(self) -> int:
         return len(self.hip)
 
+    @property
+    def z_index(self) -> tuple:
+        """The cone search's index: ``(vectors_by_z (S, 3), z_sorted (S,), order (S,) int64)``, the unit
+        vectors sorted by their ICRS z component, those z values (ascending) and the catalog row of each (for a
+        compiled caller of :func:`startracker.kernels.catalog.cone_search_sorted_z`)."""
+        return self._z_index
+
     def __repr__(self) -> str:
         return f"StarCatalog({len(self)} stars, V <= {self.vmag.max() if len(self) else float('nan'):.2f}, epoch {self.epoch})"
 

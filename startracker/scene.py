@@ -550,7 +550,8 @@ def compute_scene(
     Candidates come from one ``catalog.cone_search`` around the mean boresight, with a radius that covers
     the detector's corners (unprojected, so distortion is included), the boresight's motion over the
     frame and the margin; only candidates are projected, at the ``N × S`` path instants
-    (:mod:`startracker.kernels.scene`). A camera whose class overrides ``project`` (a detector rotated in its
+    (:mod:`startracker.kernels.scene`; for a pinhole camera and a sampled history with ``validate=False``, the
+    per-frame path, all of it in one compiled call, :func:`startracker.kernels.scene.scene_frame`). A camera whose class overrides ``project`` (a detector rotated in its
     plane, :class:`startracker.color.ChannelCamera`) has its ``project`` applied to the rotated directions.
     """
     if validate:
@@ -577,21 +578,27 @@ def compute_scene(
     start_steps, path_steps, mid_rows = _plan_offsets(plan, s)
     starts = (t0 + plan.start_offset_s) + start_steps
     path_times = starts[:, None] + path_steps[None, :]
-    q_bw = _evaluate_attitude(attitude, path_times.ravel(), validate)
-    r_cw, q_cam_mid, centre, drift = sk.camera_frames(q_bw, q_cb, r_cb, s)
-    radius = min(half_diag + drift + (margin + 2.0) / f_px + 1e-6, math.pi)
-    idx = catalog.cone_search(centre, radius, validate=False)  # a unit float64 centre, radius in (0, π]
-
-    if pinhole:
-        keep, xy_path, visible = sk.project_scene(r_cw, catalog.vectors, idx, f_mm, k1, pix_mm, cx, cy, s, w_px, h_px,
-                                                  float(margin))
+    if pinhole and not validate and isinstance(attitude, tuple) and len(attitude) == 2:
+        # the per-frame path: attitudes, cone search, projection and the kept stars' fields in one compiled call
+        r_cw, q_mid, q_cam_mid, idx, hip, vmag, bv, xy_path, visible = sk.scene_frame(
+            attitude[0], attitude[1], path_times.ravel(), q_cb, r_cb, s, *catalog.z_index, catalog.vectors, catalog.hip,
+            catalog.vmag, catalog.bv, half_diag, f_px, f_mm, k1, pix_mm, cx, cy, w_px, h_px, float(margin))
     else:
-        v_cam = sk.rotate_to_camera(r_cw, catalog.vectors, idx)
-        xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
-        keep, xy_path, visible = sk.select_near_detector(
-            np.ascontiguousarray(xy, dtype=np.float64).reshape(n * s, len(idx), 2),
-            np.ascontiguousarray(in_front).reshape(n * s, len(idx)), s, w_px, h_px, float(margin))
-    idx = idx[keep]
+        q_bw = _evaluate_attitude(attitude, path_times.ravel(), validate)
+        r_cw, q_cam_mid, centre, drift = sk.camera_frames(q_bw, q_cb, r_cb, s)
+        radius = min(half_diag + drift + (margin + 2.0) / f_px + 1e-6, math.pi)
+        idx = catalog.cone_search(centre, radius, validate=False)  # a unit float64 centre, radius in (0, π]
+        if pinhole:
+            keep, xy_path, visible = sk.project_scene(r_cw, catalog.vectors, idx, f_mm, k1, pix_mm, cx, cy, s, w_px,
+                                                      h_px, float(margin))
+        else:
+            v_cam = sk.rotate_to_camera(r_cw, catalog.vectors, idx)
+            xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
+            keep, xy_path, visible = sk.select_near_detector(
+                np.ascontiguousarray(xy, dtype=np.float64).reshape(n * s, len(idx), 2),
+                np.ascontiguousarray(in_front).reshape(n * s, len(idx)), s, w_px, h_px, float(margin))
+        idx = idx[keep]
+        hip, vmag, bv, q_mid = catalog.hip[idx], catalog.vmag[idx], catalog.bv[idx], q_bw[mid_rows]
 
     views = []
     if bodies:
@@ -607,12 +614,12 @@ def compute_scene(
         times=path_times[:, s // 2].copy(),
         path_times=path_times,
         star_index=idx,
-        hip=catalog.hip[idx],
-        vmag=catalog.vmag[idx],
-        bv=catalog.bv[idx],
+        hip=hip,
+        vmag=vmag,
+        bv=bv,
         xy_path=xy_path,
         visible=visible,
-        q_body_to_icrs=q_bw[mid_rows],
+        q_body_to_icrs=q_mid,
         q_cam_to_icrs=q_cam_mid,
         bright_bodies=tuple(views),
     )

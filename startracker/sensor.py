@@ -384,6 +384,10 @@ class StarTracker:
         self._eye3 = _frozen(np.eye(3))
         self._var_gyro = _frozen(self.gyro_sigma_rad_s**2 * np.eye(3))
         self._var_proc = _frozen(self.accel_sigma_rad_s2**2 * np.eye(3))
+        # the error of a frame's gyro acceleration (process_frame's alpha_body), alone and with the unmodelled change
+        # (writable like the per-frame covariances they stand for: one kernel signature; nothing writes them)
+        self._cov_alpha_gyro = 2.0 * self._var_gyro / self.frame_period_s**2
+        self._cov_alpha_gyro_total = self._cov_alpha_gyro + self._var_proc
         self._r_cam_to_body = camera.r_cam_to_body
         self._r_body_to_cam = _frozen(np.ascontiguousarray(camera.r_cam_to_body.T))
         self._f_px = float(camera.focal_length_px)
@@ -408,6 +412,7 @@ class StarTracker:
         self._frame_alpha = None  # this frame's gyro acceleration (process_frame's alpha_body), rad/s²
         self._last_exp_centre = 0.0
         self._dt_frame = self.frame_period_s
+        self._motion_cache = None  # (state, interval, exposure centre, _next_frame_motion's value)
 
     def _previous_gyro(self, t_frame: float):
         """The previous frame's gyro reading as a rate measurement, if recent (else None)."""
@@ -446,10 +451,22 @@ class StarTracker:
         st = self._state
         if self._mode != "track" or st is None or not st.alpha_known:
             return 1
+        n_rate, sigma, travel_px = self._next_frame_motion(st)
+        n_top = n_rate if cap_by_rate else self.max_exposures
+        n_sep = n_top if spacing_sigma == 0 or sigma == 0 else int(travel_px / (spacing_sigma * sigma))
+        return min(max(min(n_top, n_sep), 1), self.max_exposures)  # np.clip on Python ints
+
+    def _next_frame_motion(self, st: MotionState):
+        """``(N by rate, prediction σ px, travel px)`` of the next frame from the motion state ``st``: the plan's
+        ``1 + round(|ω| / rate_per_exposure_deg_s)``, the prediction's 1σ spot error at the next frame's last exposure
+        and a star's image travel over a frame period. Computed once per state and frame (the exposure plan asks for
+        it twice: :attr:`requested_n_exposures`, then :meth:`separable_n_exposures` for the detector's limit)."""
+        period = self._frame_interval_s
+        hit = self._motion_cache
+        if hit is not None and hit[0] is st and hit[1] == period and hit[2] == self._last_exp_centre:
+            return hit[3]
         w = st.omega_body
         n_rate = 1 + round(math.degrees(math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])) / self.rate_per_exposure_deg_s)
-        n_top = n_rate if cap_by_rate else self.max_exposures
-        period = self._frame_interval_s
         # The next frame's last exposure: its centre is one interval after the last frame's centre, and its
         # exposures spread over at most a frame period.
         horizon = max(period, self._last_exp_centre + 1.5 * period - st.t_s)
@@ -458,8 +475,9 @@ class StarTracker:
                                                   self._cov_alpha_total(st), float(horizon), self._f_px, self._rho_max_px)
         w_cam = self._r_body_to_cam @ w
         travel_px = math.hypot(w_cam[0], w_cam[1]) * period * self._f_px
-        n_sep = n_top if spacing_sigma == 0 or sigma == 0 else int(travel_px / (spacing_sigma * sigma))
-        return min(max(min(n_top, n_sep), 1), self.max_exposures)  # np.clip on Python ints
+        value = (n_rate, sigma, travel_px)
+        self._motion_cache = (st, period, self._last_exp_centre, value)
+        return value
 
     # ------------------------------------------------------------------ one frame
     def process_frame(self, xy, intensity, exposure_times, frame_time, omega_body=None, q_body_prior=None, *,
@@ -655,9 +673,9 @@ class StarTracker:
         if self._frame_alpha is not None:
             # the gyro's own acceleration over this frame: a torque change at the frame's start is in it
             alpha = self._frame_alpha
-            cov_a = 2.0 * var_g / self.frame_period_s**2
-            cov_w = var_g + cov_a * lever**2
-        elif prev is not None and 0 < t_frame - prev[0] <= self.coast_max_s:
+            return (gyro + alpha * lever, alpha, var_g + self._cov_alpha_gyro * lever**2,
+                    self._cov_alpha_gyro_total)
+        if prev is not None and 0 < t_frame - prev[0] <= self.coast_max_s:
             alpha = (gyro - prev[1]) / (t_frame - prev[0])
             cov_a = (var_g + prev[2]) / (t_frame - prev[0]) ** 2
             cov_w = var_g + cov_a * lever**2
@@ -675,7 +693,12 @@ class StarTracker:
         horizon = max(abs(float(t_exp[0]) - st.t_s), abs(float(t_exp[-1]) - st.t_s))
         sig_pred = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, cov_w, cov_a, horizon,
                                                      self._f_px, self._rho_max_px)
-        r = prediction_radius_px(self.centroid_sigma_px, sig_pred, self.radius_k_sigma, self.radius_min_px, self.radius_max_px)
+        if sig_pred < math.inf:  # prediction_radius_px's rule, without its checks of the tracker's own numbers
+            r = min(max(self.radius_k_sigma * math.hypot(self.centroid_sigma_px, sig_pred), self.radius_min_px),
+                    self.radius_max_px)
+        else:  # its clear error for a diverged state
+            r = prediction_radius_px(self.centroid_sigma_px, sig_pred, self.radius_k_sigma, self.radius_min_px,
+                                     self.radius_max_px)
         if len(t_exp) > 1:
             # Spots of one star one exposure apart must be well separated against the prediction error,
             # or the whole frame may match one exposure off (3/4 of the exposure plan's margin).
@@ -688,16 +711,12 @@ class StarTracker:
         t_ref = float(st.t_s)
         q0 = rk.quat_normalize(np.asarray(st.q_body_to_icrs, dtype=np.float64))
         if self._frame_model is not None:
-            # prediction's attitudes and cone search, then projection, matching, N Wahba and innovation compiled
-            q_pred, r_c2i, mid, spread = track_kernels.propagate_attitudes(q0, omega, alpha, t_exp - t_ref,
-                                                                           self._q_cam_to_body)
-            q_pred_all = q_pred
-            cone = min(math.pi, self._half_diag_fov_rad + spread + r / self._f_px + 0.02)
-            cand = self.catalog.cone_search(mid, cone, validate=False)
-            n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = track_kernels.track_frame(
-                q_pred, r_c2i, cand, self.catalog.vectors, *self._frame_model, xy, float(r), self.matcher == "brute",
+            # prediction's attitudes, cone search, projection, matching, N Wahba and innovation: one compiled call
+            q_pred_all, n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = track_kernels.track_frame_from_state(
+                q0, omega, alpha, t_exp, t_ref, self._q_cam_to_body, self._half_diag_fov_rad, self._f_px,
+                *self.catalog.z_index, self.catalog.vectors, *self._frame_model, xy, float(r), self.matcher == "brute",
                 self._r_cam_to_body, self.sigma_rad, self.min_stars_per_instant, self.outlier_k_sigma * self.sigma_rad,
-                t_exp, t_ref, st.cov_theta_rad2, cov_w, cov_a, self._intensity, self._flux, self.blend_flux_ratio)
+                st.cov_theta_rad2, cov_w, cov_a, self._intensity, self._flux, self.blend_flux_ratio)
         else:
             q_pred_all = track_kernels.propagate_attitudes(q0, omega, alpha, t_exp - t_ref, self._q_cam_to_body)[0]
             n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = self._track_stages(
@@ -706,14 +725,14 @@ class StarTracker:
         if n_pred == 0:
             return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
         frac = n_matched / n_pred
-        sel = np.flatnonzero(ok)
+        sel = ok.nonzero()[0]
         n_ok = len(sel)
         if n_ok:
             res_ok = rms_all[sel]
             rms = math.sqrt(float(res_ok @ res_ok) / n_ok)
         else:
             rms = float("inf")
-        skipped = () if n_ok == len(ok) else tuple(np.flatnonzero(~ok).tolist())
+        skipped = () if n_ok == len(ok) else tuple((~ok).nonzero()[0].tolist())
         base = dict(n_matched=n_matched, n_predicted=n_pred, radius_px=r, latency_ms=latency, residual_arcsec=rms, skipped=skipped)
         if not n_ok:
             return _Attempt(False, f"no exposure instant with {self.min_stars_per_instant} matched stars ({n_matched}/{n_pred} matched)", [], **base)

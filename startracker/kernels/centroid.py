@@ -52,7 +52,15 @@ def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, p
             min_log_ratio, intensified):
     """One spot of :func:`spot_theory`: the 13 values of ``THEORY_COLUMNS``."""
     se2 = sigma * sigma + 1.0 / 12.0
-    se = math.sqrt(se2)
+    return _theory_se(s_units, gain, f2, se2, math.sqrt(se2), sigma_o, c_splash, length, var_b, math.sqrt(var_b), thr_e,
+                      peak_f, photon_f, bg_f, lock_f, min_log_ratio, intensified)
+
+
+@njit(cache=True)
+def _theory_se(s_units, gain, f2, se2, se, sigma_o, c_splash, length, var_b, sd_b, thr_e, peak_f, photon_f, bg_f, lock_f,
+               min_log_ratio, intensified):
+    """:func:`_theory` given ``se2 = σ² + 1/12``, ``se = √se2`` and ``sd_b = √var_b`` (constant over a frame's spots
+    of one kind on a flat background: computed once there)."""
     if length > 1e-6:
         lpos = max(length, 1e-9)
         phi = (_SQRT_2PI * se / lpos) * math.erf(lpos / (2.0 * math.sqrt(2.0) * se))
@@ -91,7 +99,7 @@ def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, p
     a_cross = disc + (2.0 * r) ** 3 * length / 12.0
     a_along = disc + 2.0 * r * len3 / 12.0 + math.pi * r2 * len2 / 4.0
     # support noise: pixels near the threshold join or leave the component at random, each carrying about T
-    edge_k = _INV_SQRT_PI * thr_e * math.sqrt(var_b) * se2 / max(r, 1e-6) / cap2
+    edge_k = _INV_SQRT_PI * thr_e * sd_b * se2 / max(r, 1e-6) / cap2
     side = 2.0 * length * r2
     ring = math.pi * r2 * r
     bg_cross = var_b * a_cross / cap2 + edge_k * (side + ring)
@@ -354,6 +362,8 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
     dark, gain_bg, enf2c, read_var, prnu = background[5], background[6], background[7], background[8], background[9]
     se2_optical = sigma * sigma + 1.0 / 12.0
     se2_cosmic = cosmic_sigma * cosmic_sigma + 1.0 / 12.0
+    se_optical = math.sqrt(se2_optical)
+    se_cosmic = math.sqrt(se2_cosmic)
     g_dn2 = g_dn * g_dn
     n_in = c_id.shape[0]
     rows = np.empty(n_in, dtype=np.int64)
@@ -361,20 +371,35 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
     reach = np.empty(n_in)
     # se2, half streak, signal units, gain, splash, the detection draw scaled to U(0, 1), streak direction x, y
     pair = np.empty((n_in, 8))
+    # a flat background (no gradient: no bright body) has one level, threshold and verdict for every spot
+    flat = gx == 0.0 and gy == 0.0
+    q = var_b = sd_b = thr_e = 0.0
+    washed_out = False
+    if flat:
+        q = gain_bg * max(opt0 + gx * (cx - cx) + gy * (cy - cy), 0.0)
+        var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
+        sd_b = math.sqrt(var_b)
+        thr_e = k_sigma * sd_b
+        washed_out = math.floor((q + dark + thr_e) / g_dn + bias_dn) + 1.0 > saturation_dn
     nk = 0
     for i in range(n_in):
         x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
-        q = gain_bg * max(opt0 + gx * (x - cx) + gy * (y - cy), 0.0)
-        var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
-        thr_e = k_sigma * math.sqrt(var_b)
-        # a pixel is detected when its DN exceeds the threshold, and no pixel reads above saturation: where the
-        # background's threshold is at or above it (stray light washing the detector out) nothing is detected
-        if math.floor((q + dark + thr_e) / g_dn + bias_dn) + 1.0 > saturation_dn:
-            continue
+        if flat:
+            if washed_out:
+                continue
+        else:
+            q = gain_bg * max(opt0 + gx * (x - cx) + gy * (y - cy), 0.0)
+            var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
+            sd_b = math.sqrt(var_b)
+            thr_e = k_sigma * sd_b
+            # a pixel is detected when its DN exceeds the threshold, and no pixel reads above saturation: where the
+            # background's threshold is at or above it (stray light washing the detector out) nothing is detected
+            if math.floor((q + dark + thr_e) / g_dn + bias_dn) + 1.0 > saturation_dn:
+                continue
         opt = i < n_optical
-        th = _theory(su, gain if opt else 1.0, f2 if opt else 1.0, sigma if opt else cosmic_sigma,
-                     sigma_o if opt else cosmic_sigma, c_splash if opt else 1.0, ln, var_b, thr_e, pf, hf, bf, lf, ml,
-                     intensified and opt)
+        th = _theory_se(su, gain if opt else 1.0, f2 if opt else 1.0, se2_optical if opt else se2_cosmic,
+                        se_optical if opt else se_cosmic, sigma_o if opt else cosmic_sigma, c_splash if opt else 1.0,
+                        ln, var_b, sd_b, thr_e, pf, hf, bf, lf, ml, intensified and opt)
         c = c_id[i]
         if not u_detect[c] < th[0]:
             continue

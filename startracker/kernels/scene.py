@@ -14,12 +14,15 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.catalog import cone_search_sorted_z
+
 __all__ = [
     "interpolate_attitudes",
     "camera_frames",
     "rotate_to_camera",
     "select_near_detector",
     "project_scene",
+    "scene_frame",
 ]
 
 
@@ -320,3 +323,84 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
             xy[i, k, 0] = u * g + cx_px
             xy[i, k, 1] = w * g + cy_px
     return select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px)
+
+
+@njit(cache=True)
+def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, n_path_samples, vectors_by_z, z_sorted,
+                z_order, vectors, hip, vmag, bv, half_diag_rad, focal_length_px, focal_length_mm, k1_per_mm2,
+                pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px):
+    """A pinhole camera's frame from a sampled attitude history, in one call: :func:`interpolate_attitudes` at the
+    path instants, :func:`camera_frames`, the cone search of the catalog around the mean boresight, then
+    :func:`project_scene` and the catalog fields of the kept stars.
+
+    The cone's half-angle is ``min(half_diag_rad + drift + (margin_px + 2) / focal_length_px + 1e-6, π)`` (the
+    detector's corners, the boresight's motion over the frame and the margin), the chord test widened by 1e-12
+    relative as :meth:`startracker.catalog.StarCatalog.cone_search` does.
+
+    Parameters
+    ----------
+    t_samples : ndarray, shape (T,)
+        Strictly increasing sample times of the attitude history, s (T >= 2).
+    q_samples : ndarray, shape (T, 4)
+        Its non-zero body-to-ICRS attitudes.
+    path_times : ndarray, shape (P,)
+        The ``P = N S`` path instants, exposure-major, s.
+    q_cam_to_body : ndarray, shape (4,)
+    r_cam_to_body : ndarray, shape (3, 3)
+    n_path_samples : int
+        S (odd).
+    vectors_by_z, z_sorted, z_order : ndarray, shapes (C, 3), (C,), (C,) int64
+        The catalog's z index (:attr:`startracker.catalog.StarCatalog.z_index`).
+    vectors : ndarray, shape (C, 3)
+        Unit ICRS directions (catalog order).
+    hip : ndarray of int64, shape (C,)
+    vmag, bv : ndarray, shape (C,)
+    half_diag_rad : float
+        Angle from the boresight to the farthest detector corner, rad.
+    focal_length_px : float
+    focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px
+        As :func:`project_scene`.
+
+    Returns
+    -------
+    r_cam_to_icrs : ndarray, shape (P, 3, 3)
+    q_body_to_icrs_mid : ndarray, shape (N, 4)
+        Body attitudes at the mid instants.
+    q_cam_to_icrs_mid : ndarray, shape (N, 4)
+    star_index : ndarray of int64, shape (M,)
+        Catalog rows of the kept stars, increasing.
+    hip_kept : ndarray of int64, shape (M,)
+    vmag_kept, bv_kept : ndarray, shape (M,)
+    xy_path : ndarray, shape (N, S, M, 2)
+    visible : ndarray of bool, shape (N, M)
+    """
+    q_bw = interpolate_attitudes(t_samples, q_samples, path_times)
+    r_cw, q_cam_mid, centre, drift = camera_frames(q_bw, q_cam_to_body, r_cam_to_body, n_path_samples)
+    radius = half_diag_rad + drift + (margin_px + 2.0) / focal_length_px + 1e-6
+    if math.pi < radius:  # min(radius, π) as Python's min has it
+        radius = math.pi
+    if z_order.shape[0] == 0:
+        idx = np.empty(0, dtype=np.int64)
+    else:
+        chord = 2.0 * math.sin(radius / 2.0) * (1 + 1e-12)
+        idx = cone_search_sorted_z(vectors_by_z, z_sorted, z_order, centre, radius, chord)
+    keep, xy_path, visible = project_scene(r_cw, vectors, idx, focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px,
+                                           cy_px, n_path_samples, n_cols, n_rows, margin_px)
+    m = keep.shape[0]
+    star = np.empty(m, dtype=np.int64)
+    hip_k = np.empty(m, dtype=np.int64)
+    vmag_k = np.empty(m)
+    bv_k = np.empty(m)
+    for j in range(m):
+        c = idx[keep[j]]
+        star[j] = c
+        hip_k[j] = hip[c]
+        vmag_k[j] = vmag[c]
+        bv_k[j] = bv[c]
+    s = n_path_samples
+    n = q_bw.shape[0] // s
+    q_mid = np.empty((n, 4))
+    for e in range(n):
+        for a in range(4):
+            q_mid[e, a] = q_bw[e * s + s // 2, a]
+    return r_cw, q_mid, q_cam_mid, star, hip_k, vmag_k, bv_k, xy_path, visible

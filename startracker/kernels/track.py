@@ -17,6 +17,7 @@ from numba import njit
 
 from startracker.kernels.algebra import quat_multiply_into, quat_normalize_canonical, quat_to_rotation
 from startracker.kernels.attitude import solve_wahba_one
+from startracker.kernels.catalog import cone_search_sorted_z
 from startracker.kernels.kvector import kvector_fill
 from startracker.kernels.sensor import innovation_chi2_mean
 
@@ -32,6 +33,7 @@ __all__ = [
     "unproject_to_body",
     "solve_instants",
     "track_frame",
+    "track_frame_from_state",
     "prediction_sigma_px",
 ]
 
@@ -730,6 +732,72 @@ def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k
     if sel.shape[0]:
         nis = innovation_chi2_mean(q_body[sel], q[sel], cov[sel], t_exp[sel] - t_ref, cov_theta, cov_omega, cov_alpha)
     return n_pred, n_matched, q, cov, rms, n_used, ok, nis
+
+
+@njit(cache=True)
+def track_frame_from_state(q0, omega, alpha, t_exp, t_ref, q_cam_to_body, half_diag_fov_rad, focal_length_px,
+                           vectors_by_z, z_sorted, z_order, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm,
+                           ppx, ppy, cos_rot, sin_rot, width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad,
+                           min_stars, outlier_threshold_rad, cov_theta, cov_omega, cov_alpha, obs_intensity, star_flux,
+                           flux_ratio_max):
+    """The tracker's whole frame from its motion state: :func:`propagate_attitudes` to the instants, the cone search
+    of the catalog around them, then :func:`track_frame`, in one call.
+
+    The cone (:func:`~startracker.kernels.catalog.cone_search_sorted_z`) is centred on the mean predicted boresight,
+    its half-angle ``min(π, half_diag_fov_rad + spread + radius_px / focal_length_px + 0.02)`` (the detector's
+    corners, the boresights' spread over the frame, the neighbourhood radius and a margin), the chord test widened
+    by 1e-12 relative as :meth:`startracker.catalog.StarCatalog.cone_search` does.
+
+    Parameters
+    ----------
+    q0 : ndarray, shape (4,)
+        Unit canonical body-to-ICRS attitude of the motion state.
+    omega, alpha : ndarray, shape (3,)
+        Body rate (rad/s) and angular acceleration (rad/s²) of the propagation.
+    t_exp : ndarray, shape (N,)
+        Exposure instants, s.
+    t_ref : float
+        Time of the motion state, s.
+    q_cam_to_body : ndarray, shape (4,)
+        Camera mounting.
+    half_diag_fov_rad : float
+        Angle from the boresight to the farthest detector corner, rad.
+    focal_length_px : float
+        Focal length, px.
+    vectors_by_z, z_sorted, z_order : ndarray, shapes (C, 3), (C,), (C,) int64
+        The catalog's z index (:attr:`startracker.catalog.StarCatalog.z_index`).
+    catalog_vectors : ndarray, shape (C, 3)
+        Unit ICRS star directions (catalog order).
+    focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot, width, height, obs, radius_px, brute,
+    r_cam_to_body, sigma_rad, min_stars, outlier_threshold_rad, cov_theta, cov_omega, cov_alpha, obs_intensity,
+    star_flux, flux_ratio_max
+        As :func:`track_frame`.
+
+    Returns
+    -------
+    q_pred : ndarray, shape (N, 4)
+        Predicted body attitudes at the instants.
+    n_predicted, n_matched, q, covariance_rad2, residual_rms_arcsec, n_stars, ok, nis
+        As :func:`track_frame`.
+    """
+    n = t_exp.shape[0]
+    dt = np.empty(n)
+    for i in range(n):
+        dt[i] = t_exp[i] - t_ref
+    q_pred, r_c2i, mid, spread = propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body)
+    cone = half_diag_fov_rad + spread + radius_px / focal_length_px + 0.02
+    if not cone < math.pi:  # min(π, cone), NaN to π as Python's min has it
+        cone = math.pi
+    if z_order.shape[0] == 0:
+        cand = np.empty(0, dtype=np.int64)
+    else:
+        chord = 2.0 * math.sin(cone / 2.0) * (1 + 1e-12)
+        cand = cone_search_sorted_z(vectors_by_z, z_sorted, z_order, mid, cone, chord)
+    n_pred, n_matched, q, cov, rms, n_used, ok, nis = track_frame(
+        q_pred, r_c2i, cand, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot,
+        width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad, min_stars, outlier_threshold_rad, t_exp, t_ref,
+        cov_theta, cov_omega, cov_alpha, obs_intensity, star_flux, flux_ratio_max)
+    return q_pred, n_pred, n_matched, q, cov, rms, n_used, ok, nis
 
 
 @njit(cache=True)

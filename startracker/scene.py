@@ -447,7 +447,8 @@ _CAMERA_CACHE: dict = {}
 def _camera_constants(camera: Camera):
     """The constants of a (frozen) camera a scene uses, computed once per camera object: the angle from the
     boresight to the farthest detector corner (unprojected, so distortion included, rad), the mounting as a
-    quaternion and a matrix, and whether ``project`` is the plain pinhole (subclasses may transform it)."""
+    quaternion and a matrix, and the in-plane rotation ``(cos θ, sin θ)`` of the kernels' pinhole (``(1, 0)`` for a
+    plain camera) or None for a camera class that projects by a model of its own."""
     key = id(camera)
     hit = _CAMERA_CACHE.get(key)
     if hit is not None and hit[0] is camera:
@@ -458,7 +459,16 @@ def _camera_constants(camera: Camera):
     half_diag = float(np.arccos(np.clip(v_corner[:, 2].min(), -1.0, 1.0)))
     q_cb = np.array(camera.q_cam_to_body, dtype=np.float64)
     r_cb = np.ascontiguousarray(camera.r_cam_to_body, dtype=np.float64)
-    pinhole = type(camera).project is Camera.project
+    # the kernels' pinhole, on a detector rotated in its plane for a 3CMOS channel camera (a float rotation_rad, as
+    # startracker.track.camera_projection_model reads it); None: a camera class with a projection of its own
+    cls = type(camera)
+    rot = getattr(camera, "rotation_rad", None)
+    if cls.project is Camera.project:
+        pinhole = (1.0, 0.0)
+    elif isinstance(rot, float) and cls.unproject is not Camera.unproject:
+        pinhole = (1.0, 0.0) if rot == 0.0 else (math.cos(rot), math.sin(rot))
+    else:
+        pinhole = None
     consts = (half_diag, q_cb, r_cb, pinhole, float(camera.focal_length_mm), float(camera.distortion_k1_per_mm2),
               float(camera.pixel_size_mm), float(camera.principal_point[0]), float(camera.principal_point[1]),
               int(w_px), int(h_px), float(camera.focal_length_px))
@@ -551,8 +561,10 @@ def compute_scene(
     the detector's corners (unprojected, so distortion is included), the boresight's motion over the
     frame and the margin; only candidates are projected, at the ``N × S`` path instants
     (:mod:`startracker.kernels.scene`; for a pinhole camera and a sampled history with ``validate=False``, the
-    per-frame path, all of it in one compiled call, :func:`startracker.kernels.scene.scene_frame`). A camera whose class overrides ``project`` (a detector rotated in its
-    plane, :class:`startracker.color.ChannelCamera`) has its ``project`` applied to the rotated directions.
+    per-frame path, all of it in one compiled call, :func:`startracker.kernels.scene.scene_frame`). A detector rotated
+    in its plane (a float ``rotation_rad``: :class:`startracker.color.ChannelCamera`) is the same compiled pinhole
+    followed by the rotation; a camera class with a projection of its own has its ``project`` applied to the rotated
+    directions.
     """
     if validate:
         if not isinstance(camera, Camera):
@@ -578,19 +590,19 @@ def compute_scene(
     start_steps, path_steps, mid_rows = _plan_offsets(plan, s)
     starts = (t0 + plan.start_offset_s) + start_steps
     path_times = starts[:, None] + path_steps[None, :]
-    if pinhole and not validate and isinstance(attitude, tuple) and len(attitude) == 2:
+    if pinhole is not None and not validate and isinstance(attitude, tuple) and len(attitude) == 2:
         # the per-frame path: attitudes, cone search, projection and the kept stars' fields in one compiled call
         r_cw, q_mid, q_cam_mid, idx, hip, vmag, bv, xy_path, visible = sk.scene_frame(
             attitude[0], attitude[1], path_times.ravel(), q_cb, r_cb, s, *catalog.z_index, catalog.vectors, catalog.hip,
-            catalog.vmag, catalog.bv, half_diag, f_px, f_mm, k1, pix_mm, cx, cy, w_px, h_px, float(margin))
+            catalog.vmag, catalog.bv, half_diag, f_px, f_mm, k1, pix_mm, cx, cy, w_px, h_px, float(margin), *pinhole)
     else:
         q_bw = _evaluate_attitude(attitude, path_times.ravel(), validate)
         r_cw, q_cam_mid, centre, drift = sk.camera_frames(q_bw, q_cb, r_cb, s)
         radius = min(half_diag + drift + (margin + 2.0) / f_px + 1e-6, math.pi)
         idx = catalog.cone_search(centre, radius, validate=False)  # a unit float64 centre, radius in (0, π]
-        if pinhole:
+        if pinhole is not None:
             keep, xy_path, visible = sk.project_scene(r_cw, catalog.vectors, idx, f_mm, k1, pix_mm, cx, cy, s, w_px,
-                                                      h_px, float(margin))
+                                                      h_px, float(margin), *pinhole)
         else:
             v_cam = sk.rotate_to_camera(r_cw, catalog.vectors, idx)
             xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)

@@ -408,3 +408,61 @@ def test_fusion_without_validation_is_the_same(color_frames):
     for name in ("xy", "intensity", "channel_index", "n_channels", "has_color"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     np.testing.assert_array_equal(np.isnan(a.color_ratio), np.isnan(b.color_ratio))
+
+
+def _fusion_reference(cs, reg, radius, min_channels, gain):
+    """The fusion rule written out with numpy and k-d trees (the independent truth of the compiled fusion)."""
+    xy = [reg.to_green(i, c.xy) if len(c.xy) else c.xy for i, c in enumerate(cs)]
+    var = [(np.maximum(c.intensity, 1e-9) / gain + c.area * c.noise_dn ** 2) / np.maximum(c.intensity, 1e-9) ** 2
+           for c in cs]
+    rows = [[r, g, b] for g, (r, b) in enumerate(zip([-1] * len(xy[1]), [-1] * len(xy[1])))]
+    for ch in (0, 2):
+        if len(xy[1]) and len(xy[ch]):
+            for g, j in zip(*_mutual_nearest_reference(xy[1], xy[ch], radius)):
+                rows[g][ch] = j
+    free = [np.setdiff1d(np.arange(len(xy[ch])), [r[ch] for r in rows]) for ch in (0, 1, 2)]
+    ri, bi = (_mutual_nearest_reference(xy[0][free[0]], xy[2][free[2]], radius) if len(free[0]) and len(free[2])
+              else (np.zeros(0, int), np.zeros(0, int)))
+    rows += [[free[0][i], -1, free[2][j]] for i, j in zip(ri, bi)]
+    if min_channels == 1:
+        rows += [[i, -1, -1] for i in np.setdiff1d(free[0], free[0][ri])]
+        rows += [[-1, -1, j] for j in np.setdiff1d(free[2], free[2][bi])]
+    rows = [r for r in rows if sum(v >= 0 for v in r) >= min_channels]
+    out = []
+    for r in rows:
+        w = np.array([1.0 / var[ch][r[ch]] if r[ch] >= 0 else 0.0 for ch in range(3)])
+        p = np.array([xy[ch][r[ch]] if r[ch] >= 0 else [0.0, 0.0] for ch in range(3)])
+        it = np.array([cs[ch].intensity[r[ch]] if r[ch] >= 0 else 0.0 for ch in range(3)])
+        out.append((w @ p / w.sum(), it, r))
+    out.sort(key=lambda o: -o[1].sum())  # stable: ties keep their order
+    return out
+
+
+def test_compiled_fusion_follows_the_fusion_rule(color_frames):
+    """The compiled centroid-level fusion against the rule written out here: pairs, lone spots per min_channels,
+    inverse-variance positions, brightest first, colour ratio where red and blue both see the star."""
+    from types import SimpleNamespace
+
+    cc, reg, model, _ = color_frames
+    rng = np.random.default_rng(11)
+    truth = rng.uniform(40, 2000, (60, 2))
+    cs = []
+    for ch in range(3):
+        seen = rng.random(len(truth)) < 0.8
+        p = reg.from_green(ch, truth[seen]) + rng.normal(0, 0.2, (seen.sum(), 2))
+        p = np.concatenate([p, rng.uniform(0, 2048, (5, 2))])  # lone spots (cosmic rays, hot pixels)
+        cs.append(SimpleNamespace(xy=p, intensity=rng.uniform(50, 5000, len(p)),
+                                  area=rng.integers(1, 30, len(p)).astype(np.int64), noise_dn=1.5 + ch))
+    for min_channels in (1, 2, 3):
+        got = fuse_channel_centroids(cs, reg, min_channels=min_channels, gain_e_per_dn=0.5)
+        want = _fusion_reference(cs, reg, 2.0, min_channels, 0.5)
+        assert len(got) == len(want) > 30
+        np.testing.assert_allclose(got.xy, [o[0] for o in want], rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(got.intensity, [o[1] for o in want])
+        np.testing.assert_array_equal(got.channel_index, [o[2] for o in want])
+        np.testing.assert_array_equal(got.n_channels, [sum(v >= 0 for v in o[2]) for o in want])
+        both = np.array([o[2][0] >= 0 and o[2][2] >= 0 for o in want])
+        np.testing.assert_array_equal(got.has_color, both)
+        np.testing.assert_allclose(got.color_ratio[both], [np.log(o[1][0] / o[1][2]) for o, b in zip(want, both) if b],
+                                   rtol=1e-14)
+        assert np.all(np.isnan(got.color_ratio[~both]))

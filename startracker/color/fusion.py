@@ -14,7 +14,7 @@ import numpy as np
 from scipy import ndimage
 
 from startracker.color.registration import ColorRegistration
-from startracker.kernels.color import mutual_nearest
+from startracker.kernels.color import fuse_channels
 from startracker.validation import as_float_array
 
 __all__ = [
@@ -135,18 +135,6 @@ class FusedDetections:
         return self.intensity.sum(axis=1)
 
 
-_NO_PAIRS = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
-
-
-def _mutual_nearest(a: np.ndarray, b: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (i into a, j into b) that are each other's nearest neighbour within ``radius``
-    (:func:`startracker.kernels.color.mutual_nearest`)."""
-    if len(a) == 0 or len(b) == 0:
-        return _NO_PAIRS
-    return mutual_nearest(np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),
-                          float(radius))
-
-
 def fuse_channel_centroids(centroids, registration: ColorRegistration, *, match_radius_px: float = 2.0,
                            min_channels: int = 2, gain_e_per_dn: float = 1.0, validate: bool = True) -> FusedDetections:
     """Fuse the three channels' centroids into one detection list (centroid-level fusion).
@@ -210,67 +198,40 @@ class _ChannelDetections:
     noise_dn: float
 
 
-def _unpaired(n: int, paired: np.ndarray) -> np.ndarray:
-    """Increasing indices in ``range(n)`` that ``paired`` (−1: none) does not hold."""
-    free = np.ones(n, dtype=bool)
-    free[paired[paired >= 0]] = False
-    return np.flatnonzero(free)
+_REGISTRATION_CACHE: dict = {}
+
+
+def _registration_arrays(registration: ColorRegistration):
+    """``(affine (2, 3), x0 (2,), q)`` of red and of blue onto green, as :func:`startracker.kernels.color.fuse_channels`
+    takes them: once per (frozen) registration."""
+    hit = _REGISTRATION_CACHE.get(id(registration))
+    if hit is not None and hit[0] is registration:
+        return hit[1]
+    out = []
+    for p in (registration.red, registration.blue):
+        if not p.success:  # ChannelRegistration.apply's refusal
+            raise ValueError(f"registration is not calibrated ({p.status}); refusing to apply it")
+        out += [np.ascontiguousarray(p.matrix(), dtype=np.float64),
+                np.array(p.principal_point, dtype=np.float64), float(p.q_per_px2)]
+    value = tuple(out)
+    if len(_REGISTRATION_CACHE) > 64:
+        _REGISTRATION_CACHE.clear()
+    _REGISTRATION_CACHE[id(registration)] = (registration, value)
+    return value
 
 
 def _fuse(cs, registration: ColorRegistration, match_radius_px: float, min_channels: int,
           gain_e_per_dn: float) -> FusedDetections:
-    """:func:`fuse_channel_centroids` on checked channel detections."""
-    xy, inten, var = [], [], []
-    for i, c in enumerate(cs):
-        p, it, area = c.xy, c.intensity, c.area
-        noise = float(c.noise_dn) if math.isfinite(c.noise_dn) else 0.0
-        it_pos = np.maximum(it, 1e-9)
-        xy.append(registration.to_green(i, p) if len(p) else p)
-        inten.append(it)
-        var.append((it_pos / gain_e_per_dn + area * noise**2) / it_pos**2)
-    r, g, b = 0, 1, 2
-    n_g = len(xy[g])
-    idx = np.full((n_g, 3), -1, dtype=np.int64)
-    idx[:, g] = np.arange(n_g)
-    gi, ri = _mutual_nearest(xy[g], xy[r], match_radius_px)
-    idx[gi, r] = ri
-    gi, bi = _mutual_nearest(xy[g], xy[b], match_radius_px)
-    idx[gi, b] = bi
-    free_r = _unpaired(len(xy[r]), idx[:, r])
-    free_b = _unpaired(len(xy[b]), idx[:, b])
-    ri, bi = _mutual_nearest(xy[r][free_r], xy[b][free_b], match_radius_px)
-    rb = np.full((len(ri), 3), -1, dtype=np.int64)
-    rb[:, r], rb[:, b] = free_r[ri], free_b[bi]
-    rows = [idx, rb]
-    if min_channels == 1:
-        lone_r = np.setdiff1d(free_r, free_r[ri])
-        lone_b = np.setdiff1d(free_b, free_b[bi])
-        for ch, lone in ((r, lone_r), (b, lone_b)):
-            t = np.full((len(lone), 3), -1, dtype=np.int64)
-            t[:, ch] = lone
-            rows.append(t)
-    idx = np.concatenate(rows)
-    present = idx >= 0
-    n_ch = present.sum(axis=1)
-    keep = n_ch >= min_channels
-    idx, present, n_ch = idx[keep], present[keep], n_ch[keep]
-    k = len(idx)
-    w = np.zeros((k, 3))
-    pos = np.zeros((k, 3, 2))
-    it = np.zeros((k, 3))
-    for ch in range(3):
-        m = present[:, ch]
-        j = idx[m, ch]
-        w[m, ch] = 1.0 / var[ch][j]
-        pos[m, ch] = xy[ch][j]
-        it[m, ch] = inten[ch][j]
-    fused = (w[..., None] * pos).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-300)[:, None]
-    has_color = present[:, r] & present[:, b] & (it[:, r] > 0) & (it[:, b] > 0)
-    ratio = np.full(k, np.nan)
-    ratio[has_color] = np.log(it[has_color, r] / it[has_color, b])
-    order = np.argsort(-it.sum(axis=1), kind="stable")
-    return FusedDetections(xy=fused[order], intensity=it[order], channel_index=idx[order], n_channels=n_ch[order],
-                           color_ratio=ratio[order], has_color=has_color[order])
+    """:func:`fuse_channel_centroids` on checked channel detections: one compiled call
+    (:func:`startracker.kernels.color.fuse_channels`)."""
+    noise = np.array([float(c.noise_dn) if math.isfinite(c.noise_dn) else 0.0 for c in cs])
+    xy = [np.ascontiguousarray(c.xy, dtype=np.float64).reshape(-1, 2) for c in cs]
+    inten = [np.ascontiguousarray(c.intensity, dtype=np.float64) for c in cs]
+    area = [np.ascontiguousarray(c.area, dtype=np.float64) for c in cs]
+    fused, it, idx, n_ch, ratio, has_color = fuse_channels(*xy, *inten, *area, noise, *_registration_arrays(registration),
+                                                           match_radius_px, int(min_channels), gain_e_per_dn)
+    return FusedDetections(xy=fused, intensity=it, channel_index=idx, n_channels=n_ch, color_ratio=ratio,
+                           has_color=has_color)
 
 
 def aperture_photometry(images, xy_green, registration: ColorRegistration, radius_px: float = 3.0,

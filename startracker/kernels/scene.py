@@ -269,12 +269,15 @@ def select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px
 
 @njit(cache=True)
 def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px, cy_px,
-                  n_path_samples, n_cols, n_rows, margin_px):
+                  n_path_samples, n_cols, n_rows, margin_px, cos_rot=1.0, sin_rot=0.0):
     """Every candidate star at every instant through the pinhole with radial distortion, then
     :func:`select_near_detector`.
 
     Pinhole (:mod:`startracker.optics`): ``x' = f X/Z, y' = f Y/Z`` (mm), ``δ = k1 (x'² + y'²)``,
-    ``col = cx + x' (1 + δ) / p, row = cy + y' (1 + δ) / p``; in front when ``Z > 1e-12 |v|``.
+    ``col = cx + x' (1 + δ) / p, row = cy + y' (1 + δ) / p``; in front when ``Z > 1e-12 |v|``. A detector rotated in
+    its plane by θ about the principal point (a 3CMOS channel, :class:`startracker.color.ChannelCamera`) then has
+    ``(col, row) = pp + (d_col cos θ + d_row sin θ, −d_col sin θ + d_row cos θ)`` with ``d`` the offsets from ``pp``
+    (``cos_rot = 1``, ``sin_rot = 0``: no rotation, skipped).
 
     Parameters
     ----------
@@ -289,6 +292,8 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
         Principal point (column, row), px.
     n_path_samples, n_cols, n_rows, margin_px
         As :func:`select_near_detector`.
+    cos_rot, sin_rot : float
+        The detector's in-plane rotation θ.
 
     Returns
     -------
@@ -306,6 +311,7 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
     in_front = np.empty((n_p, k_n), dtype=np.bool_)
     f_px = focal_length_mm / pixel_size_mm
     k1_px = k1_per_mm2 * focal_length_mm * focal_length_mm  # δ = k1 f² (X² + Y²) / Z²
+    rotate = cos_rot != 1.0 or sin_rot != 0.0
     for i in range(n_p):
         r00, r10, r20 = r_cam_to_icrs[i, 0, 0], r_cam_to_icrs[i, 1, 0], r_cam_to_icrs[i, 2, 0]
         r01, r11, r21 = r_cam_to_icrs[i, 0, 1], r_cam_to_icrs[i, 1, 1], r_cam_to_icrs[i, 2, 1]
@@ -320,15 +326,21 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
             u = x * inv_z
             w = y * inv_z
             g = f_px * (1.0 + k1_px * (u * u + w * w))
-            xy[i, k, 0] = u * g + cx_px
-            xy[i, k, 1] = w * g + cy_px
+            if rotate:
+                dx = u * g
+                dy = w * g
+                xy[i, k, 0] = cx_px + (dx * cos_rot + dy * sin_rot)
+                xy[i, k, 1] = cy_px + (-dx * sin_rot + dy * cos_rot)
+            else:
+                xy[i, k, 0] = u * g + cx_px
+                xy[i, k, 1] = w * g + cy_px
     return select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px)
 
 
 @njit(cache=True)
 def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, n_path_samples, vectors_by_z, z_sorted,
                 z_order, vectors, hip, vmag, bv, half_diag_rad, focal_length_px, focal_length_mm, k1_per_mm2,
-                pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px):
+                pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px, cos_rot, sin_rot):
     """A pinhole camera's frame from a sampled attitude history, in one call: :func:`interpolate_attitudes` at the
     path instants, :func:`camera_frames`, the cone search of the catalog around the mean boresight, then
     :func:`project_scene` and the catalog fields of the kept stars.
@@ -358,7 +370,7 @@ def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, 
     half_diag_rad : float
         Angle from the boresight to the farthest detector corner, rad.
     focal_length_px : float
-    focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px
+    focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px, cos_rot, sin_rot
         As :func:`project_scene`.
 
     Returns
@@ -385,7 +397,7 @@ def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, 
         chord = 2.0 * math.sin(radius / 2.0) * (1 + 1e-12)
         idx = cone_search_sorted_z(vectors_by_z, z_sorted, z_order, centre, radius, chord)
     keep, xy_path, visible = project_scene(r_cw, vectors, idx, focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px,
-                                           cy_px, n_path_samples, n_cols, n_rows, margin_px)
+                                           cy_px, n_path_samples, n_cols, n_rows, margin_px, cos_rot, sin_rot)
     m = keep.shape[0]
     star = np.empty(m, dtype=np.int64)
     hip_k = np.empty(m, dtype=np.int64)

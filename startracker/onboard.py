@@ -1063,20 +1063,16 @@ class StarTrackerUnit:
         if len(fusion.last_innovation_rad) == 0:
             return
         ring = self._monitor
-        total, n, mean_chi2 = filter_kernels.innovation_window(
+        total, n, mean_chi2, delivery_chi2, max_nis, n_nis = filter_kernels.innovation_window(
             fusion.last_nis, fusion.last_innovation_rad, fusion.last_innovation_cov_rad2, *ring,
             self._monitor_slot)
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
         n_timing = float(np.sum(self._timing_n))
         timing_alarm = n_timing > 0 and float(np.sum(self._timing)) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
-        # the delivery's own mean: a drift that starts now is diluted tenfold in the window's mean, not here
-        z_sum = fusion.last_innovation_rad.sum(axis=0)
-        delivery_chi2 = float(z_sum @ np.linalg.solve(fusion.last_innovation_cov_rad2.sum(axis=0), z_sum))
-        sample_alarm = False
-        if MONITOR_SAMPLE_NIS:
-            nis = fusion.last_nis[np.isfinite(fusion.last_nis)]  # stale samples have none
-            sample_alarm = nis.size > 0 and float(np.max(nis)) > sample_nis_threshold(nis.size)
+        # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
+        # its samples' own NIS
+        sample_alarm = MONITOR_SAMPLE_NIS and n_nis > 0 and max_nis > sample_nis_threshold(int(n_nis))
         self._monitor_slot = (self._monitor_slot + 1) % MONITOR_DELIVERIES
         self._monitor_filled += 1
         if (total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3
@@ -1127,14 +1123,9 @@ class StarTrackerUnit:
         w_norm = math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
         if w_norm < TIMING_MIN_RATE_RAD_S or len(tm) == 0:
             return 0.0, 0.0, False
-        u = w / w_norm
         z, s = self.fusion.prior_innovations(qm, tm, cm)
-        r = np.einsum("i,mij,j->m", u, cm, u)
-        p = max(float(np.max(np.einsum("i,mij,j->m", u, s, u) - r)), 0.0)
-        inv = 1.0 / r
-        v = 1.0 / float(np.sum(inv))
-        c = float(np.sum((z @ u) * inv)) * v
-        return c * c / (p + v), 1.0, p > TIMING_LOOSE_PRIOR_RATIO * float(np.min(r))
+        stat, loose = filter_kernels.timing_statistic(w / w_norm, z, s, cm, TIMING_LOOSE_PRIOR_RATIO)
+        return stat, 1.0, bool(loose)
 
     @property
     def n_wrong_samples_total(self) -> int:

@@ -80,8 +80,11 @@ def soak(n_steps: int, seed: int = 0, faults_per_min: float = 6.0, episode_s: fl
     t0 = time.perf_counter()
     ep_seed = seed * 1_000_003
     obs, info = env.reset(seed=ep_seed)
+    k = 0  # step of the episode
+    where = []  # (check, episode seed, step of the episode): what to replay
     while counts["steps"] < n_steps:
         try:
+            k += 1
             action = rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
             obs, r, te, tr, info = env.step(action)
             counts["nonfinite_obs"] += int(not np.all(np.isfinite(obs)))
@@ -97,12 +100,17 @@ def soak(n_steps: int, seed: int = 0, faults_per_min: float = 6.0, episode_s: fl
             counts["confidently_wrong_samples"] += cs
             counts["wrong_estimates"] += we
             counts["confidently_wrong_estimates"] += ce
+            if cs or ce:
+                where.append(("confidently_wrong_samples" if cs else "confidently_wrong_estimates", ep_seed, k))
             if te or tr:
                 counts["episodes"] += 1
                 ep_seed += 1
+                k = 0
                 obs, info = env.reset(seed=ep_seed)
         except Exception as exc:  # a soak counts failures instead of stopping at the first
             counts["exceptions"] += 1
+            where.append(("exceptions", ep_seed, k))
+            k = 0
             counts["episodes"] += 1  # the episode ends there, its counts so far are kept
             first_msg = first_msg or f"{type(exc).__name__}: {exc}"
             ep_seed += 1
@@ -118,7 +126,7 @@ def soak(n_steps: int, seed: int = 0, faults_per_min: float = 6.0, episode_s: fl
     env.close()
     return dict(counts, wall_s=wall, steps_per_s=counts["steps"] / wall, rss_start_mb=rss_mb() if rss_start is None else rss_start,
                 rss_end_mb=rss_mb(),
-                first_exception=first_msg, pid=os.getpid())
+                first_exception=first_msg, pid=os.getpid(), where=where)
 
 
 def _chunk(args):
@@ -153,7 +161,8 @@ def soak_parallel(n_steps: int, seed: int = 0, procs: int = 1, chunk: int = 10_0
             first[1] = r["rss_end_mb"]
         wall = time.perf_counter() - t0
         out.update(wall_s=wall, steps_per_s=out["steps"] / wall, procs=procs, rss_mb=list(rss.values()),
-                   first_exception=next((r["first_exception"] for _, r in done if r["first_exception"]), None))
+                   first_exception=next((r["first_exception"] for _, r in done if r["first_exception"]), None),
+                   where=[(i, *w) for i, r in done for w in r["where"]])
         return out
 
     if procs <= 1:
@@ -188,6 +197,10 @@ def table(res: dict) -> str:
         lines.append(f"| RSS of process {j + 1}, start -> end | {a:.0f} -> {b:.0f} MB ({b - a:+.1f}) | flat |")
     if res["first_exception"]:
         lines.append(f"first exception: {res['first_exception']}")
+    if res.get("where"):
+        lines.append("where (chunk, check, episode seed, step of the episode; the chunk's actions come from "
+                     "numpy.random.default_rng(seed · 1,000,003 + chunk)):")
+        lines += [f"  {i}, {check}, {ep}, {k}" for i, check, ep, k in res["where"][:30]]
     return "\n".join(lines)
 
 

@@ -40,6 +40,7 @@ span of truth) is one object, and :func:`run_star_tracker` is its thin driver.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field, fields, replace
@@ -150,6 +151,17 @@ MONITOR_TIMING_CHI2_1 = NormalDist().inv_cdf(1.0 - MONITOR_FALSE_ALARM_P / 2.0) 
 # After a timing alarm, valid again only once the window's timing sum is below χ²(n) at this standard-normal quantile
 # (0: the median, evidence of no timing error rather than too little to alarm).
 TIMING_RECOVERY_Z = 0.0
+# An unconfirmed fix: a delivery fused over a prediction this many times looser along ω (in variance) than the frame's
+# most precise sample sets the estimate along ω from that frame, whose timestamp the timing test could not check: it
+# passes a timing error of √(χ²·(p + v)), most of which the fused estimate takes (a re-acquisition after a gap, a
+# first fix, a restart). In tracking, the prediction, built on many frames, is as precise as a sample: p / r stayed
+# ≤ 2.1 over 3,000 fault-free deliveries in random slews; a re-acquisition after seconds without frames gives 10-1000.
+TIMING_LOOSE_PRIOR_RATIO = 4.0
+# ... and the estimate is invalid until this many later deliveries passed the timing test with a tight prediction.
+CONFIRM_DELIVERIES = 2
+# Each sample's own innovation, tested at MONITOR_FALSE_ALARM_P per delivery (χ²(3) at p / M for M samples): a drift
+# that starts within a frame shows in its last samples before it moves the delivery's mean.
+MONITOR_SAMPLE_NIS = True
 # Gyro jump monitor: a rigid body's rate is continuous (finite torques) and, within one observed span (one command
 # held), smooth; a step in the readings is a gyro that changed (a bias jump), found by a GLR test over the previous
 # and the current span (:func:`startracker.kernels.filter.gyro_jump_statistic`) at this false-alarm probability per
@@ -166,6 +178,13 @@ GYRO_JUMP_NONCENTRALITY_99 = 66.14439045439
 # The bias change the reported covariance allows for, per σ_δ (see StarTrackerUnit._bias_allowance): a step the monitor
 # finds 99 % of the time, unseen, leaves an error at the verdict's own χ² bound; smaller steps stay inside it.
 BIAS_ALLOWANCE_FACTOR = math.sqrt(GYRO_JUMP_NONCENTRALITY_99 / VERDICT_CHI2_3)
+
+
+@functools.lru_cache(maxsize=256)
+def sample_nis_threshold(n_samples: int) -> float:
+    """The per-sample innovation test's threshold for a delivery of ``n_samples``: χ²(3) at
+    :data:`MONITOR_FALSE_ALARM_P` / ``n_samples`` (the delivery's false-alarm probability stays ≈ that p)."""
+    return chi2_3_threshold(MONITOR_FALSE_ALARM_P / n_samples)
 
 
 def _chi2_quantile_wilson_hilferty(dof: float, z: float) -> float:
@@ -600,6 +619,7 @@ class StarTrackerUnit:
         self._timing_last = (0.0, 0.0)  # the last delivery's timing statistic (see _timing_statistic)
         self._inconsistent = False
         self._timing_suspect = False
+        self._unconfirmed = 0  # later deliveries a fix the timing test could not vouch for still waits for
         self._timing_alarms = 0
         self._monitor_alarms = 0
         self._t_lock_lost = None
@@ -953,7 +973,7 @@ class StarTrackerUnit:
         first)."""
         sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
         return (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0 and not self._inconsistent
-                and not self._timing_suspect
+                and not self._timing_suspect and self._unconfirmed == 0
                 and self._t_saturated < self._t_accepted
                 and self._t_gyro_jump < self._t_accepted)
 
@@ -981,9 +1001,12 @@ class StarTrackerUnit:
             first = 1
         # what the filter's checks demand holds by construction (sorted, finite, unit, SPD from Wahba)
         self._timing_last = (0.0, 0.0)
+        # a fix the timing test cannot vouch for: the filter's first, or one over a loose prediction (a gap)
+        loose = first == 1 and self._rate_matters()
         fresh = tm[first:] >= self.fusion.ekf.t_s
         if first == 0 and fresh.any():
-            self._timing_last = self._timing_statistic(qm[fresh], tm[fresh], cm[fresh])
+            stat, has, loose = self._timing_statistic(qm[fresh], tm[fresh], cm[fresh])
+            self._timing_last = (stat, has)
         if self._timing_last[0] > MONITOR_TIMING_CHI2_1:
             # the frame's timestamps disagree with the gyro along the rate: fused, it would drag the estimate
             # (and the bias) by ω δt; it is refused and the estimate is invalid until the timing is quiet again
@@ -997,6 +1020,8 @@ class StarTrackerUnit:
             accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
         if accepted.any():
             self._t_accepted = max(self._t_accepted, float(tm[accepted][-1]))
+            # a loose fix waits for CONFIRM_DELIVERIES later frames the timing test could check
+            self._unconfirmed = CONFIRM_DELIVERIES if loose else max(self._unconfirmed - 1, 0)
         n_wrong = int(np.count_nonzero(wrong))
         n_confident = int(np.count_nonzero(wrong & accepted))
         self._n_wrong += n_wrong
@@ -1019,6 +1044,8 @@ class StarTrackerUnit:
                 self._t_accepted = float(tm[-1])
                 self._rejected_frames = 0
                 self._filter_resets += 1
+                if self._rate_matters():
+                    self._unconfirmed = CONFIRM_DELIVERIES
 
     def _monitor_innovations(self) -> None:
         """Innovation tests over the last deliveries: on failure, void the estimate's validity and open the bias
@@ -1036,20 +1063,20 @@ class StarTrackerUnit:
         if len(fusion.last_innovation_rad) == 0:
             return
         ring = self._monitor
-        total, n, mean_chi2 = filter_kernels.innovation_window(
+        total, n, mean_chi2, delivery_chi2, max_nis, n_nis = filter_kernels.innovation_window(
             fusion.last_nis, fusion.last_innovation_rad, fusion.last_innovation_cov_rad2, *ring,
             self._monitor_slot)
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
         n_timing = float(np.sum(self._timing_n))
         timing_alarm = n_timing > 0 and float(np.sum(self._timing)) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
-        # the delivery's own mean: a drift that starts now is diluted tenfold in the window's mean, not here
-        z_sum = fusion.last_innovation_rad.sum(axis=0)
-        delivery_chi2 = float(z_sum @ np.linalg.solve(fusion.last_innovation_cov_rad2.sum(axis=0), z_sum))
+        # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
+        # its samples' own NIS
+        sample_alarm = MONITOR_SAMPLE_NIS and n_nis > 0 and max_nis > sample_nis_threshold(int(n_nis))
         self._monitor_slot = (self._monitor_slot + 1) % MONITOR_DELIVERIES
         self._monitor_filled += 1
         if (total > _chi2_quantile_wilson_hilferty(3.0 * n, _MONITOR_Z) or mean_chi2 > MONITOR_MEAN_CHI2_3
-                or (MONITOR_DELIVERY_MEAN and delivery_chi2 > MONITOR_MEAN_CHI2_3) or timing_alarm):
+                or (MONITOR_DELIVERY_MEAN and delivery_chi2 > MONITOR_MEAN_CHI2_3) or timing_alarm or sample_alarm):
             ekf = fusion.ekf
             p_bb = np.diag(ekf.P[3:, 3:])
             ekf.set_bias_covariance(np.diag(np.maximum(p_bb, RESTART_BIAS_SIGMA_RAD_S**2)))
@@ -1072,27 +1099,33 @@ class StarTrackerUnit:
                 or float(np.sum(self._timing)) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
             self._timing_suspect = False
 
-    def _timing_statistic(self, qm, tm, cm) -> tuple[float, float]:
+    def _rate_matters(self) -> bool:
+        """Whether the body turns fast enough (:data:`TIMING_MIN_RATE_RAD_S`, from the last gyro reading) for a
+        timestamp error to move an attitude."""
+        w = self._omega_gyro
+        return math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])) >= TIMING_MIN_RATE_RAD_S
+
+    def _timing_statistic(self, qm, tm, cm) -> tuple[float, float, bool]:
         """The timing test of a delivery's samples (M, 4), (M,), (M, 3, 3), before they are fused; returns the
-        statistic and whether there is one (1.0) or not (0.0: too slow a rate for a timestamp to matter).
+        statistic, whether there is one (1.0) or not (0.0: too slow a rate for a timestamp to matter), and whether the
+        prediction was too loose for the test to vouch for the frame (:data:`TIMING_LOOSE_PRIOR_RATIO`).
 
         A timestamp error δt shared by the samples moves each by ``ω δt``, along the body rate (direction ``u``).
         Against the filter's prediction (:meth:`startracker.filter.DelayedFusion.prior_innovations`), the samples'
         weighted mean innovation along ``u``, ``c = Σ (uᵀz_i / r_i) / Σ 1 / r_i`` with ``r_i = uᵀ R_i u``, has
         variance ``p + 1 / Σ 1 / r_i`` without one, ``p`` the prediction's variance along ``u`` (its error is shared by
-        the samples; the largest over the frame). ``c² / var`` is χ²(1)."""
+        the samples; the largest over the frame). ``c² / var`` is χ²(1). With ``p`` more than
+        :data:`TIMING_LOOSE_PRIOR_RATIO` times the smallest ``r_i``, the test can pass a timing error of
+        ``√(χ² (p + 1 / Σ 1 / r_i))``, most of which the fused estimate would take: the fix must be confirmed by later
+        frames (:data:`CONFIRM_DELIVERIES`)."""
         ekf = self.fusion.ekf
         w = ekf.omega_body
         w_norm = math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
         if w_norm < TIMING_MIN_RATE_RAD_S or len(tm) == 0:
-            return 0.0, 0.0
-        u = w / w_norm
+            return 0.0, 0.0, False
         z, s = self.fusion.prior_innovations(qm, tm, cm)
-        r = np.einsum("i,mij,j->m", u, cm, u)
-        p = float(np.max(np.einsum("i,mij,j->m", u, s, u) - r))
-        inv = 1.0 / r
-        c = float(np.sum((z @ u) * inv)) / float(np.sum(inv))
-        return c * c / (max(p, 0.0) + 1.0 / float(np.sum(inv))), 1.0
+        stat, loose = filter_kernels.timing_statistic(w / w_norm, z, s, cm, TIMING_LOOSE_PRIOR_RATIO)
+        return stat, 1.0, bool(loose)
 
     @property
     def n_wrong_samples_total(self) -> int:

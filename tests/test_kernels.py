@@ -391,3 +391,44 @@ def test_tracking_kernels_bit_identical_across_processes_and_a_fresh_numba_cache
     cached = subprocess.run([sys.executable, "-c", _FRAME_SCRIPT], cwd=root, env=env, capture_output=True, text=True,
                             check=True).stdout.strip()
     assert len(fresh) == 64 and fresh == cached
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_monitor_kernels_equal_their_numpy_formulas(seed):
+    """The innovation monitor's and the timing test's statistics, compiled, against the same quantities written with
+    numpy's solve and einsum: the window's spread and mean, the newest delivery's mean χ² and largest NIS (NaN
+    skipped), and the timing statistic c² / (p + 1 / Σ 1/r) with its loose-prediction flag."""
+    from startracker.kernels import filter as fk
+
+    rng = np.random.default_rng(seed)
+    m = 5
+    a = rng.normal(size=(m, 3, 3)) * 1e-5
+    r_cov = a @ a.transpose(0, 2, 1) + np.eye(3) * 1e-11
+    b = rng.normal(size=(3, 3)) * 3e-5
+    p_pred = b @ b.T
+    s = r_cov + p_pred
+    z = rng.normal(size=(m, 3)) * 2e-5
+    nis = np.array([zi @ np.linalg.solve(si, zi) for zi, si in zip(z, s)])
+    nis_with_stale = np.concatenate([[np.nan], nis])
+    k = 4
+    ring = (np.zeros(k), np.zeros(k), np.zeros((k, 3)), np.zeros((k, 3, 3)))
+    ring[0][1], ring[1][1], ring[2][1], ring[3][1] = 7.0, 2.0, z[0] * 2, s[0] * 2  # an earlier delivery
+    total, n, mean_chi2, delivery_chi2, max_nis, n_nis = fk.innovation_window(nis_with_stale, z, s, *ring, 0)
+    zs, ss = z.sum(axis=0), s.sum(axis=0)
+    assert total == pytest.approx(nis.sum() + 7.0, rel=1e-12) and n == m + 2
+    zw, sw = zs + z[0] * 2, ss + s[0] * 2
+    assert mean_chi2 == pytest.approx(zw @ np.linalg.solve(sw, zw), rel=1e-9)
+    assert delivery_chi2 == pytest.approx(zs @ np.linalg.solve(ss, zs), rel=1e-9)
+    assert max_nis == nis.max() and n_nis == m
+
+    w = rng.normal(size=3)
+    u = w / np.linalg.norm(w)
+    r = np.einsum("i,mij,j->m", u, r_cov, u)
+    p = max(float(np.max(np.einsum("i,mij,j->m", u, s, u) - r)), 0.0)
+    v = 1.0 / np.sum(1.0 / r)
+    c = np.sum((z @ u) / r) * v
+    stat, loose = fk.timing_statistic(u, z, s, r_cov, 4.0)
+    assert stat == pytest.approx(c * c / (p + v), rel=1e-9)
+    assert loose == (p > 4.0 * r.min())
+    assert fk.timing_statistic(u, z, s, r_cov, p / r.min() * 1.01)[1] is False
+    assert fk.timing_statistic(u, z, s, r_cov, p / r.min() * 0.99)[1] is True

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from envs.avionics import Avionics
-from startracker.onboard import StarTrackerUnit, UnitConfig, run_star_tracker
+from startracker.onboard import CONFIRM_DELIVERIES, StarTrackerUnit, UnitConfig, run_star_tracker
 
 ARCSEC = np.radians(1 / 3600)
 
@@ -34,7 +34,9 @@ def test_readme_example_tracks_a_constant_rate_rotation():
     # lost -> acquire -> track within the first frames, then tracking to the end
     assert hist.mode[0] in ("acquire", "track") and hist.mode.index("track") <= 2
     assert all(m == "track" for m in hist.mode[3:])
-    assert hist.valid[2:].all() and np.all(hist.n_attitude_samples[3:] >= 1)
+    # the first fix, at 1.2 °/s, waits for CONFIRM_DELIVERIES frames that check its timestamp before it is valid
+    assert not hist.valid[:2 + CONFIRM_DELIVERIES].any() and hist.valid[2 + CONFIRM_DELIVERIES:].all()
+    assert np.all(hist.n_attitude_samples[3:] >= 1)
     err = errors_arcsec(r, t, hist)
     late = slice(20, None)
     # the estimate follows the truth to the tracker's accuracy, inside the filter's own 3σ

@@ -13,7 +13,9 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
   :meth:`startracker.filter.AttitudeEKF.process` (its extra ``rate_noise`` is the process noise of saturated gyro
   axes; it also returns each sample's innovation, its covariance and NIS);
 - :func:`saturated_rate_noise`: which gyro readings are saturated, and the process noise they get;
-- :func:`innovation_window`: the innovation monitor's window statistics (spread and mean of the innovations);
+- :func:`innovation_window`: the innovation monitor's statistics (spread and mean of the innovations over the
+  window, the newest delivery's mean and its largest NIS);
+- :func:`timing_statistic`: the timing test of a delivery along the body rate, before it is fused;
 - :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped).
 
 The module is over 600 lines because it is one room: what the onboard filter computes, the fusion of a frame and
@@ -29,7 +31,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
-           "innovation_window", "saturated_rate_noise", "gyro_jump_statistic"]
+           "innovation_window", "timing_statistic", "saturated_rate_noise", "gyro_jump_statistic"]
 
 
 @njit(cache=True)
@@ -494,7 +496,7 @@ def quat_advance(q, rotvec):
 
 @njit(cache=True)
 def innovation_window(nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot):
-    """Store one delivery's innovation sums in a ring and return the window's two consistency statistics.
+    """Store one delivery's innovation sums in a ring and return the window's and the delivery's statistics.
 
     Parameters
     ----------
@@ -520,14 +522,23 @@ def innovation_window(nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot):
     n : float
         Samples in the window.
     mean_chi2 : float
-        ``(Σ z)ᵀ (Σ S)⁻¹ (Σ z)``: χ²(3) for a white innovation sequence (0 for an empty window).
+        ``(Σ z)ᵀ (Σ S)⁻¹ (Σ z)`` over the window: χ²(3) for a white innovation sequence (0 for an empty window).
+    delivery_chi2 : float
+        The same over this delivery's ``z`` and ``s`` alone (0 when it has none).
+    max_nis : float
+        The delivery's largest NIS (NaN skipped; 0 when none).
+    n_nis : float
+        How many of its NIS are not NaN.
     """
     total = 0.0
     count = 0.0
+    max_nis = 0.0
     for i in range(nis.shape[0]):
         if nis[i] == nis[i]:
             total += nis[i]
             count += 1.0
+            if nis[i] > max_nis:
+                max_nis = nis[i]
     ring_nis[slot] = total
     ring_n[slot] = count
     for a in range(3):
@@ -540,6 +551,13 @@ def innovation_window(nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot):
             for i in range(s.shape[0]):
                 acc += s[i, a, c]
             ring_s[slot, a, c] = acc
+    s_inv = np.empty((3, 3))
+    delivery_chi2 = 0.0
+    if z.shape[0] > 0:
+        _inv3_sym_into(ring_s[slot], s_inv)
+        for a in range(3):
+            for c in range(3):
+                delivery_chi2 += ring_z[slot, a] * s_inv[a, c] * ring_z[slot, c]
     nis_total = 0.0
     n = 0.0
     zs = np.zeros(3)
@@ -553,14 +571,65 @@ def innovation_window(nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot):
                 for c in range(3):
                     ss[a, c] += ring_s[k, a, c]
     if n == 0.0:
-        return nis_total, n, 0.0
-    s_inv = np.empty((3, 3))
+        return nis_total, n, 0.0, delivery_chi2, max_nis, count
     _inv3_sym_into(ss, s_inv)
     mean_chi2 = 0.0
     for a in range(3):
         for c in range(3):
             mean_chi2 += zs[a] * s_inv[a, c] * zs[c]
-    return nis_total, n, mean_chi2
+    return nis_total, n, mean_chi2, delivery_chi2, max_nis, count
+
+
+@njit(cache=True)
+def timing_statistic(u, z, s, r_cov, loose_ratio):
+    """The timing test of a delivery against the gyro-propagated prediction, along the body rate.
+
+    A timestamp error δt shared by the samples moves each by ``ω δt`` along ``u``. With ``r_i = uᵀ R_i u`` and ``p``
+    the prediction's variance along ``u`` (``uᵀ S_i u − r_i``, the largest over the samples), the weighted mean
+    innovation along ``u``, ``c = Σ (uᵀ z_i / r_i) / Σ 1 / r_i``, has variance ``p + 1 / Σ 1 / r_i`` without one.
+
+    Parameters
+    ----------
+    u : ndarray, shape (3,)
+        Unit vector of the body rate (body frame).
+    z : ndarray, shape (M, 3)
+        Each sample's innovation against the prediction, rad (M ≥ 1).
+    s : ndarray, shape (M, 3, 3)
+        Its covariance, prediction's plus the sample's, rad².
+    r_cov : ndarray, shape (M, 3, 3)
+        The samples' own covariances ``R_i``, rad².
+    loose_ratio : float
+        ``p`` beyond this many times the smallest ``r_i`` makes the prediction loose.
+
+    Returns
+    -------
+    statistic : float
+        ``c² / (p + 1 / Σ 1 / r_i)``: χ²(1) without a timing error.
+    loose : bool
+        Whether ``p > loose_ratio · min r_i``: the test cannot vouch for the frame.
+    """
+    p = -math.inf
+    r_min = math.inf
+    sum_inv = 0.0
+    sum_c = 0.0
+    for i in range(z.shape[0]):
+        r = 0.0
+        si = 0.0
+        for a in range(3):
+            for c in range(3):
+                r += u[a] * r_cov[i, a, c] * u[c]
+                si += u[a] * s[i, a, c] * u[c]
+        if si - r > p:
+            p = si - r
+        if r < r_min:
+            r_min = r
+        sum_inv += 1.0 / r
+        sum_c += (u[0] * z[i, 0] + u[1] * z[i, 1] + u[2] * z[i, 2]) / r
+    if p < 0.0:
+        p = 0.0
+    v = 1.0 / sum_inv
+    c = sum_c * v
+    return c * c / (p + v), p > loose_ratio * r_min
 
 
 @njit(cache=True)

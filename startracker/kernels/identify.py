@@ -23,7 +23,8 @@ which side is the widest) come from a coarse cumulative count of the pair angles
 One call per frame. :func:`identify_pyramid_detections` takes the raw detections to labels and attitude:
 :func:`prepare_detections` (order, detector bounds, unit vectors, duplicates, angle tables), the
 :func:`smart_triads` of the pool, :func:`pyramid_search` and :func:`solve_identified` (final least
-squares and labels), so :func:`startracker.identify.identify` spends one compiled call on a pyramid frame.
+squares and labels), so :func:`startracker.identify.identify` spends one call (four compiled ones) on a
+pyramid frame.
 
 The module is over 600 lines because it holds the compiled core of every identification method: the
 pyramid loop, the shared verification and least squares, the vote table and the frame tables call the same
@@ -38,6 +39,7 @@ import numpy as np
 from numba import njit
 
 from startracker.kernels.algebra import det3, inv_transpose3, quat_from_rotation
+from startracker.kernels.kvector import stable_argsort_into
 from startracker.kernels.optics import unproject_pinhole
 
 __all__ = [
@@ -793,7 +795,9 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
     w1 = np.empty((1, 3))
     d1 = np.empty((1, 2))
     i1 = np.empty((1, 2), dtype=np.int64)
-    order = np.arange(triads.shape[0])
+    order = np.empty(triads.shape[0], dtype=np.int64)
+    for t in range(triads.shape[0]):
+        order[t] = t
     # Window sizes (both orientations) from the coarse count table: a look-up in the large k-vector costs a
     # cache miss or two per window, and most windows of the pool are never joined.
     m_ang = ang.shape[0]
@@ -811,10 +815,14 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
         for t in range(triads.shape[0]):
             x, y, z = cnt[triads[t, 0], triads[t, 1]], cnt[triads[t, 0], triads[t, 2]], cnt[triads[t, 1], triads[t, 2]]
             cost[t] = x + y + z - max(x, max(y, z))
+        block = np.empty(cheap_first)
+        sub = np.empty(cheap_first, dtype=np.int64)
         for b0 in range(0, triads.shape[0], cheap_first):
-            b1_ = min(b0 + cheap_first, triads.shape[0])
-            sub = np.argsort(cost[b0:b1_], kind="mergesort")
-            for u in range(b1_ - b0):
+            nb = min(b0 + cheap_first, triads.shape[0]) - b0
+            for u in range(nb):
+                block[u] = cost[b0 + u]
+            stable_argsort_into(block[:nb], sub[:nb])
+            for u in range(nb):
                 order[b0 + u] = b0 + sub[u]
     for tt in range(triads.shape[0]):
         t = order[tt]
@@ -1010,15 +1018,17 @@ STATUS_PARALLEL = 4
 STATUS_RESIDUAL = 5
 
 
-@njit(cache=True)
 def identify_pyramid_detections(xy, intensities, have_intensities, mag_zero_point, width, height, focal_length_mm,
                                 k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles, dup_cos, pair_sigma_rad, floor_rad,
                                 aberration_scale, max_stars, max_triads, cheap_first, nav, s_ang, kk, a1, b1, first,
                                 second, cell_start, cell_stars, g, count_cdf, count_bin_rad, nav_hip, clumping,
                                 dens_eff_per_sr, sigma_rad, match_tol_rad, false_alarm, max_rounds, stable_fit,
                                 misfit_p):
-    """Pyramid lost-in-space on one frame of detections, in one call: :func:`prepare_detections`, the
-    :func:`smart_triads` of the pool, :func:`pyramid_search` (no candidate filter) and :func:`solve_identified`.
+    """Pyramid lost-in-space on one frame of detections: :func:`prepare_detections`, the :func:`smart_triads` of
+    the pool, :func:`pyramid_search` (no candidate filter) and :func:`solve_identified`.
+
+    Plain Python over four compiled calls (a few microseconds more than one): compiled as one function it would
+    carry the whole tree of compiled code below it once more, about 4 s of the first compilation.
 
     Parameters
     ----------
@@ -1055,13 +1065,13 @@ def identify_pyramid_detections(xy, intensities, have_intensities, mag_zero_poin
     index, v, mag, ang, tol = prepare_detections(xy, intensities, have_intensities, mag_zero_point, width, height,
                                                  focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles,
                                                  dup_cos, pair_sigma_rad, floor_rad, aberration_scale)
-    n = index.shape[0]
+    n = int(index.shape[0])
     none_ids = np.full(k, -1, dtype=np.int64)
     q0 = np.array([1.0, 0.0, 0.0, 0.0])
     cov0 = np.full((3, 3), np.inf)
     if n < 3:
         return STATUS_FEW, none_ids, q0, cov0, 0, 0, 0, n, np.inf
-    pool = min(n, max_stars, ang.shape[0])
+    pool = min(n, max_stars, int(ang.shape[0]))
     triads = smart_triads(pool, max_triads)
     no_key = np.zeros(1)
     status, det, nav_idx, n_req, n_hyp, rot, rms, counts = pyramid_search(
@@ -1075,7 +1085,7 @@ def identify_pyramid_detections(xy, intensities, have_intensities, mag_zero_poin
         return STATUS_PARALLEL, none_ids, q0, cov0, 0, n_req, n_hyp, n, np.inf
     if rms_f > match_tol_rad:
         return STATUS_RESIDUAL, none_ids, q0, cov0, 0, n_req, n_hyp, n, np.inf
-    return STATUS_OK, star_ids, q, cov, det.shape[0], n_req, n_hyp, n, rms_f
+    return STATUS_OK, star_ids, q, cov, int(det.shape[0]), n_req, n_hyp, n, rms_f
 
 
 @njit(cache=True)
@@ -1181,10 +1191,15 @@ def prepare_detections(xy, intensities, have_intensities, mag_zero_point, width,
         Window half-widths, rad.
     """
     k = xy.shape[0]
+    order = np.empty(k, dtype=np.int64)
     if have_intensities:
-        order = np.argsort(-intensities, kind="mergesort")
+        neg = np.empty(k)
+        for t in range(k):
+            neg[t] = -intensities[t]
+        stable_argsort_into(neg, order)
     else:
-        order = np.arange(k)
+        for t in range(k):
+            order[t] = t
     on = np.empty(k, dtype=np.int64)
     n_on = 0
     for t in range(k):

@@ -17,6 +17,8 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.kvector import search_sorted
+
 __all__ = [
     "vector_norm",
     "cross",
@@ -253,7 +255,7 @@ def _interpolate_rows(t, q, tq):
     step = np.empty((1, 4))
     for k in range(nq):
         x = min(max(tq[k], t[0]), t[s - 1])
-        i = np.searchsorted(t, x) - 1
+        i = search_sorted(t, x, False) - 1
         if i < 0:
             i = 0
         if i > s - 2:

@@ -14,6 +14,8 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.kvector import search_sorted
+
 __all__ = [
     "interpolate_attitudes",
     "camera_frames",
@@ -63,7 +65,7 @@ def interpolate_attitudes(t_samples, q_samples, t_query):
     r = np.empty(4)
     for i in range(n_q):
         t = min(max(t_query[i], t_samples[0]), t_samples[n_s - 1])
-        k = np.searchsorted(t_samples, t) - 1  # side="left"
+        k = search_sorted(t_samples, t, False) - 1  # side="left"
         if k < 0:
             k = 0
         if k > n_s - 2:

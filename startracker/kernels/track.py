@@ -17,7 +17,7 @@ from numba import njit
 
 from startracker.kernels.algebra import quat_multiply_into, quat_normalize_canonical, quat_to_rotation
 from startracker.kernels.attitude import solve_wahba_one
-from startracker.kernels.kvector import kvector_fill
+from startracker.kernels.kvector import kvector_fill, median_value, sort_values
 from startracker.kernels.sensor import innovation_chi2_mean
 
 __all__ = [
@@ -564,7 +564,7 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 ratio[j] = obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300)
                 j += 1
         # the scale of one exposure's light: the lower quartile (at low rates joined spots can be most matches)
-        cap = flux_ratio_max * np.sort(ratio)[n_assigned // 4]
+        cap = flux_ratio_max * sort_values(ratio)[n_assigned // 4]
         for q in range(k_n):
             if assign[q] >= 0 and obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300) > cap:
                 assign[q] = -1
@@ -621,7 +621,7 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 # drag the fit toward them and hide from a threshold on the claimed σ: also test against the
                 # instant's own robust scale (median residual norm / 1.1774 is σ for Gaussian errors), never below
                 # 0.4 of the threshold (2σ of the claimed σ at the default 5σ).
-                med = np.median(used[:cnt]) / 1.1774
+                med = median_value(used[:cnt]) / 1.1774
                 threshold = min(threshold, max(5.0 * med, 0.4 * outlier_threshold_rad))
             if cnt > 2 and ang[worst] > threshold:
                 m[i, worst] = False

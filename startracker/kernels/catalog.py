@@ -17,7 +17,7 @@ from startracker.kernels.kvector import search_sorted, sort_values
 __all__ = ["cone_search_sorted_z"]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def cone_search_sorted_z(vectors_by_z, z_sorted, order, direction, radius_rad, chord_max):
     """Indices of the stars within ``radius_rad`` of ``direction``.
 

@@ -105,7 +105,7 @@ def build_sky_grid(vectors: np.ndarray, g: int = GRID_CELLS) -> tuple[np.ndarray
     return cell_start, cell_stars
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def grid_cell(x: float, g: int) -> int:
     """Cell index along one axis of a coordinate in [-1, 1]."""
     c = int((x + 1.0) * (0.5 * g))
@@ -116,7 +116,7 @@ def grid_cell(x: float, g: int) -> int:
     return c
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def nearest_two(w, nav, cell_start, cell_stars, g, max_chord, dist, idx):
     """Two nearest navigation stars of each direction within a chord radius (k-d tree semantics).
 
@@ -170,7 +170,7 @@ def nearest_two(w, nav, cell_start, cell_stars, g, max_chord, dist, idx):
         idx[q, 1] = i1
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def select_matches(dist, idx, chord):
     """Unambiguous one-to-one matches from a two-nearest-neighbour query.
 
@@ -226,7 +226,7 @@ def select_matches(dist, idx, chord):
     return det, nav, d
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def rotation_svd(b, r):
     """Unweighted Wahba rotation ``R`` with ``r ≈ R b`` (SVD, proper).
 
@@ -279,7 +279,7 @@ def rotation_svd(b, r):
     return rot
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def solve_attitude(b, r, sigma_rad):
     """Final least squares: Wahba by SVD with equal weights, QUEST covariance, RMS residual.
 
@@ -331,7 +331,7 @@ def solve_attitude(b, r, sigma_rad):
     return True, quat_from_rotation(rot), math.sqrt(acc / m), np.linalg.inv(info)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def solve_identified(v, nav, nav_hip, index, det, nav_idx, n_input, sigma_rad):
     """Final least squares on a verified match set, and the HIP label of every input detection.
 
@@ -372,7 +372,7 @@ def solve_identified(v, nav, nav_hip, index, det, nav_idx, n_input, sigma_rad):
     return ok, q, rms, cov, star_ids
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def binom_tail(n, p, e):
     """P(Binomial(n, p) >= e), summed from the tail term upwards (accurate for tiny p)."""
     if e <= 0:
@@ -396,7 +396,7 @@ def binom_tail(n, p, e):
     return min(total, 1.0)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def poisson_tail(mu, k):
     """P(Poisson(mu) >= k)."""
     if k <= 0:
@@ -409,7 +409,7 @@ def poisson_tail(mu, k):
     return max(0.0, 1.0 - cdf)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def required_matches(lam, n_det, p, false_alarm):
     """Smallest ``3 + e`` matched detections with ``λ · P(Binomial(n_det − 3, p) >= e) <= false_alarm``.
 
@@ -424,7 +424,7 @@ def required_matches(lam, n_det, p, false_alarm):
     return n_det + 1
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def triangle_false_rate(ang, tol, i, j, k, n_stars, clumping):
     """Expected number of wrong catalog triangles matching detections (i, j, k) (``λ``).
 
@@ -448,7 +448,7 @@ def triangle_false_rate(ang, tol, i, j, k, n_stars, clumping):
     return 2.0 * n_stars**3 * eps**3 * radius / math.pi * clumping
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def kvector_range(s, kk, a1, b1, lo, hi):
     """Exact index range of the ascending values ``s`` inside ``[lo, hi]`` (k-vector look-up, paper 000).
 
@@ -481,7 +481,7 @@ def kvector_range(s, kk, a1, b1, lo, hi):
     return start, max(stop, start)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def rotate_all(rot, v):
     """``v @ rot.T``: rows of ``v`` (n, 3) rotated by ``rot`` (3, 3)."""
     out = np.empty_like(v)
@@ -491,7 +491,7 @@ def rotate_all(rot, v):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, max_rounds, stable_fit, dist, idx):
     """Refit the attitude on every match and match again until the matches stop changing.
 
@@ -545,7 +545,7 @@ def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, m
     return converged, rot, det, navm, dm
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_rot, lam, false_alarm,
                       match_tol_rad, dens_eff_per_sr, max_rounds, stable_fit, misfit_p):
     """Verification of one hypothesis (see :mod:`startracker.identify.verification`).
@@ -645,21 +645,21 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
     return True, rot, det, navm, n_req, rms
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def triple_product(a, b, c):
     """a · (b × c) of three 3-vectors."""
     return (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
             + a[2] * (b[0] * c[1] - b[1] * c[0]))
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def admissible(star_key, key_lo, key_hi, p, s):
     """Whether star ``s`` may stand for detection ``p`` under the candidate filter."""
     k = star_key[s]
     return k >= key_lo[p] and k <= key_hi[p]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang, tol, p, q):
     """Catalog pair candidates (both orientations) in the window of detections (p, q), and those kept."""
     start, stop = kvector_range(s_ang, kk, a1, b1, ang[p, q] - tol[p, q], ang[p, q] + tol[p, q])
@@ -699,7 +699,7 @@ def pair_count_table(sorted_angles: np.ndarray, n_bins: int = 8192) -> tuple[np.
     return cdf, bin_rad
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def cdf_at(cdf, bin_rad, x):
     """The count table of :func:`pair_count_table` at angle ``x`` (linear inside a bin)."""
     nb = cdf.shape[0] - 1
@@ -712,14 +712,14 @@ def cdf_at(cdf, bin_rad, x):
     return cdf[b] + (u - b) * (cdf[b + 1] - cdf[b])
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def window_estimate(cdf, bin_rad, lo, hi):
     """Estimated catalog pair candidates (both orientations) with angles in ``[lo, hi]``, from
     :func:`pair_count_table`."""
     return 2.0 * (cdf_at(cdf, bin_rad, hi) - cdf_at(cdf, bin_rad, lo))
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b1, first, second, cell_start, cell_stars,
                    g, count_cdf, count_bin_rad, star_key, key_lo, key_hi, filtered, rate, clumping, dens_eff_per_sr, match_tol_rad,
                    false_alarm, max_rounds, stable_fit, misfit_p):
@@ -989,7 +989,7 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
     return status, empty, empty, 0, n_hyp, np.eye(3), np.inf, counts
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def smart_triads(n, max_triads):
     """The first ``max_triads`` triads of Mortari's "smart" order over ``n`` stars.
 
@@ -1088,7 +1088,7 @@ def identify_pyramid_detections(xy, intensities, have_intensities, mag_zero_poin
     return STATUS_OK, star_ids, q, cov, int(det.shape[0]), n_req, n_hyp, n, rms_f
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def cast_votes(ang, tol, pool, s_ang, kk, a1, b1, first, second, first_mag, second_mag, mag, mag_tol, use_mag,
                n_nav):
     """Geometric-voting table (see :mod:`startracker.identify.voting`).
@@ -1141,7 +1141,7 @@ def cast_votes(ang, tol, pool, s_ang, kk, a1, b1, first, second, first_mag, seco
     return votes
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def prepare_detections(xy, intensities, have_intensities, mag_zero_point, width, height, focal_length_mm,
                        k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles, dup_cos, pair_sigma_rad, floor_rad,
                        aberration_scale):

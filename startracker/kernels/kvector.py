@@ -19,7 +19,7 @@ __all__ = ["kvector_build", "kvector_fill", "stable_argsort", "stable_argsort_in
            "search_sorted"]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def kvector_build(values):
     """Sort ``values`` and tabulate the k-vector of paper 000 eqs. 1-3.
 
@@ -47,7 +47,7 @@ def kvector_build(values):
     return order, s, k, a1, b1
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def kvector_fill(values, order, s, k):
     """:func:`kvector_build` into preallocated arrays ``order``, ``s``, ``k`` (shape (n,) each); returns (a1, b1)."""
     n = values.shape[0]
@@ -70,7 +70,7 @@ def kvector_fill(values, order, s, k):
     return a1, b1
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def stable_argsort(values):
     """``np.argsort(values, kind="stable")`` (see :func:`stable_argsort_into`), shape (n,) -> int64 (n,)."""
     order = np.empty(values.shape[0], dtype=np.int64)
@@ -78,7 +78,7 @@ def stable_argsort(values):
     return order
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def stable_argsort_into(values, order):
     """``np.argsort(values, kind="stable")`` in O(n) for spread-out values: a bucket sort.
 
@@ -138,7 +138,7 @@ def stable_argsort_into(values, order):
             _insertion_argsort(values, order, a, e)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _insertion_argsort(values, order, a, e):
     """Stable insertion sort of ``order[a:e]`` by ``values[order]``."""
     for j in range(a + 1, e):
@@ -151,7 +151,7 @@ def _insertion_argsort(values, order, a, e):
         order[i + 1] = cur
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _merge_argsort(values, order, a, e, tmp):
     """Stable sort of ``order[a:e]`` by ``values[order]``: insertion-sorted runs of 16, merged bottom-up.
 
@@ -184,7 +184,7 @@ def _merge_argsort(values, order, a, e, tmp):
             order[t] = src[t]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def sort_values(a):
     """``np.sort(a)`` for a 1-d array without NaN: an ascending copy (heapsort; insertion below 16 values).
 
@@ -220,7 +220,7 @@ def sort_values(a):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _sift_down(h, root, n):
     """Restore the max-heap property below ``root`` in ``h[:n]``."""
     cur = h[root]
@@ -237,7 +237,7 @@ def _sift_down(h, root, n):
     h[root] = cur
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def median_value(a):
     """``np.median(a)`` of a 1-d float64 array without NaN (NaN when empty): the middle value, or the mean
     ``(lo + hi) / 2`` of the two middle values, as numpy computes it."""
@@ -251,7 +251,7 @@ def median_value(a):
     return s[half]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def search_sorted(a, x, right):
     """``np.searchsorted(a, x, side="right" if right else "left")`` for ascending ``a`` and a non-NaN ``x``.
 

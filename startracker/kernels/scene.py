@@ -25,7 +25,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _canonical(q):
     """q and -q are one rotation: the one whose first non-zero component is positive (in place)."""
     for i in range(4):
@@ -36,7 +36,7 @@ def _canonical(q):
             return
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def interpolate_attitudes(t_samples, q_samples, t_query):
     """Spherical-linear interpolation of an attitude history (scipy ``Slerp``'s rule).
 
@@ -109,7 +109,7 @@ def interpolate_attitudes(t_samples, q_samples, t_query):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def camera_frames(q_body_to_icrs, q_cam_to_body, r_cam_to_body, n_path_samples):
     """Camera-to-ICRS rotations at the path instants, the camera attitudes at the mid instants, the cone axis.
 
@@ -182,7 +182,7 @@ def camera_frames(q_body_to_icrs, q_cam_to_body, r_cam_to_body, n_path_samples):
     return r, qc, centre, drift
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def rotate_to_camera(r_cam_to_icrs, vectors, index):
     """Catalog directions in the camera frame at every instant: ``Rᵀ v``.
 
@@ -209,7 +209,7 @@ def rotate_to_camera(r_cam_to_icrs, vectors, index):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px):
     """Keep the stars whose path comes within ``margin_px`` of the detector; their paths and visibility.
 
@@ -266,7 +266,7 @@ def select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px
     return keep, xy_path, visible
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px, cy_px,
                   n_path_samples, n_cols, n_rows, margin_px):
     """Every candidate star at every instant through the pinhole with radial distortion, then

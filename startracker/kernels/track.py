@@ -37,7 +37,7 @@ __all__ = [
 
 
 # ------------------------------------------------------------------------------------------- prediction
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
     """Second-order attitude propagation to N instants and the camera's attitude there.
 
@@ -105,7 +105,7 @@ def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
     return q_body, r, mid, spread
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def project_frame(v_icrs, star, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot,
                   sin_rot, width, height, margin_px):
     """Project S catalog stars at N instants; keep the spots on the detector or within the margin around it.
@@ -182,7 +182,7 @@ def project_frame(v_icrs, star, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixe
 
 
 # --------------------------------------------------------------------------------------------- matching
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_build(pred):
     """Paper 000 §3.1: both k-vector tables over the predicted points, and the rows linking them.
 
@@ -237,7 +237,7 @@ def dkvlut_build(pred):
     return order, k, line, cross
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _axis_range(k, line, n, o, r):
     """Eqs. 4-5 on one axis: 0-based half-open rows ``[K(i_a) - 1, K(i_b))`` (the paper's ``[K(i_a), K(i_b)]``)."""
     inv, b1, tol, s0, s1 = line[0], line[1], line[2], line[3], line[4]
@@ -261,7 +261,7 @@ def _axis_range(k, line, n, o, r):
     return max(k[ia - 1] - 1, 0), k[ib - 1]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_ranges(order, k, line, obs, radius_px):
     """Candidate rows of every observed point on both axes (eqs. 4-5).
 
@@ -290,7 +290,7 @@ def dkvlut_ranges(order, k, line, obs, radius_px):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_candidates(order, k, line, cross, obs, radius_px):
     """The intersection set R_P of eq. 6 of every observed point, as (query, predicted) pairs.
 
@@ -329,7 +329,7 @@ def dkvlut_candidates(order, k, line, cross, obs, radius_px):
     return qi[:p].copy(), ei[:p].copy()
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_match(pred, order, k, line, cross, obs, radius_px):
     """Paper 000 §3.2 for every observed point: the nearest point of R_P within the radius.
 
@@ -378,7 +378,7 @@ def dkvlut_match(pred, order, k, line, cross, obs, radius_px):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_build_match(pred, obs, radius_px):
     """:func:`dkvlut_build` then :func:`dkvlut_match`, in one call (the tracker's per-frame use).
 
@@ -400,7 +400,7 @@ def dkvlut_build_match(pred, obs, radius_px):
     return dkvlut_match(pred, order, k, line, cross, obs, radius_px)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def match_brute(pred, obs, radius_px):
     """Paper 000 §2's "existing method": every observed point against every predicted point.
 
@@ -425,7 +425,7 @@ def match_brute(pred, obs, radius_px):
 
 
 # ------------------------------------------------------------------------ grouping into N attitudes
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def unproject_to_body(xy, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot, r_cam_to_body):
     """Pixel coordinates to unit body-frame directions (inverse of :func:`project_frame`'s camera model).
 
@@ -478,7 +478,7 @@ ROBUST_MIN_STARS = 8
 """Instants with at least this many stars also test outliers against their own robust residual scale."""
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_vectors, n_instants, sigma_rad,
                    min_stars, outlier_threshold_rad, obs_intensity, star_flux, flux_ratio_max):
     """Unique assignment, grouping by exposure instant and one Wahba solution per instant with outlier rejection.
@@ -643,7 +643,7 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
     return q_out, cov, rms, n_used, ok, assign, n_out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy,
                 cos_rot, sin_rot, width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad, min_stars,
                 outlier_threshold_rad, t_exp, t_ref, cov_theta, cov_omega, cov_alpha, obs_intensity, star_flux,
@@ -732,7 +732,7 @@ def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k
     return n_pred, n_matched, q, cov, rms, n_used, ok, nis
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def prediction_sigma_px(r_cam_to_body, cov_theta, cov_omega, cov_alpha, dt_s, focal_length_px, rho_px):
     """1σ per-axis spot prediction error, px: ``sqrt(f² max(P_xx, P_yy) + ρ² P_zz)`` of ``Rᵀ P(dt) R``.
 

@@ -317,7 +317,13 @@ def solve_attitude(b, r, sigma_rad):
         info[i, i] += w1 * m
     ev = np.linalg.eigvalsh(info)
     if ev[0] <= 1e-10 * max(w1 * m, 1e-300):
-        return False, np.array([1.0, 0.0, 0.0, 0.0]), np.inf, np.full((3, 3), np.inf)
+        q_none = np.zeros(4)
+        q_none[0] = 1.0
+        cov_none = np.empty((3, 3))
+        for i in range(3):
+            for j in range(3):
+                cov_none[i, j] = np.inf
+        return False, q_none, np.inf, cov_none
     acc = 0.0
     for t in range(m):
         rb0 = rot[0, 0] * b[t, 0] + rot[0, 1] * b[t, 1] + rot[0, 2] * b[t, 2]
@@ -362,7 +368,9 @@ def solve_identified(v, nav, nav_hip, index, det, nav_idx, n_input, sigma_rad):
     m = det.shape[0]
     b = np.empty((m, 3))
     r = np.empty((m, 3))
-    star_ids = np.full(n_input, -1, dtype=np.int64)
+    star_ids = np.empty(n_input, dtype=np.int64)
+    for t in range(n_input):
+        star_ids[t] = -1
     for t in range(m):
         for ax in range(3):
             b[t, ax] = v[det[t], ax]
@@ -503,7 +511,9 @@ def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, m
     det, navm, dm : ndarray
         Final matches and their chord distances; ``dist`` / ``idx`` hold the last query.
     """
-    rot = np.eye(3)
+    rot = np.zeros((3, 3))
+    for i in range(3):
+        rot[i, i] = 1.0
     dm = np.empty(0)
     converged = False
     for _ in range(max_rounds):
@@ -782,9 +792,13 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
     ambiguous = False
     n_hyp = 0
     counts = np.zeros(2, dtype=np.int64)
-    seen = np.zeros((ang.shape[0], ang.shape[0]), dtype=np.bool_)
+    # Allocations spelt np.empty / np.zeros with the element types other kernels use: each other spelling
+    # (np.full, a bool matrix of zeros, np.array of a list) compiles one more numba function.
+    seen = np.zeros((ang.shape[0], ang.shape[0]), dtype=np.int64)
     # int32 work arrays: the join's random accesses then stay in the first-level caches.
-    stamp = np.full(n_nav, -1, dtype=np.int32)
+    stamp = np.empty(n_nav, dtype=np.int32)
+    for s in range(n_nav):
+        stamp[s] = -1
     head = np.empty(n_nav, dtype=np.int32)
     chord = 2.0 * math.sin(match_tol_rad / 2.0)
     n4 = min(max(pool, 4), n)
@@ -835,16 +849,16 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
                                       tol, i, k)
             c_jk, n_jk = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
                                       tol, j, k)
-            if not seen[i, j]:
-                seen[i, j] = True
+            if seen[i, j] == 0:
+                seen[i, j] = 1
                 counts[0] += c_ij
                 counts[1] += n_ij
-            if not seen[i, k]:
-                seen[i, k] = True
+            if seen[i, k] == 0:
+                seen[i, k] = 1
                 counts[0] += c_ik
                 counts[1] += n_ik
-            if not seen[j, k]:
-                seen[j, k] = True
+            if seen[j, k] == 0:
+                seen[j, k] = 1
                 counts[0] += c_jk
                 counts[1] += n_jk
             kij, kik, kjk = float(n_ij), float(n_ik), float(n_jk)
@@ -943,8 +957,10 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
                 if not found:
                     continue
             n_hyp += 1
-            det3 = np.array([i, j, k], dtype=np.int64)
-            nav3 = np.array([a, b, c], dtype=np.int64)
+            det3 = np.empty(3, dtype=np.int64)
+            nav3 = np.empty(3, dtype=np.int64)
+            det3[0], det3[1], det3[2] = i, j, k
+            nav3[0], nav3[1], nav3[2] = a, b, c
             ok, rot_v, det_v, nav_v, req_v, rms_v = verify_hypothesis(
                 v, nav, cell_start, cell_stars, g, det3, nav3, rot, True, lam, false_alarm, match_tol_rad,
                 dens_eff_per_sr, max_rounds, stable_fit, misfit_p)
@@ -986,7 +1002,10 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
         return (STATUS_OK, ver_det[bi, :nb].copy(), ver_nav[bi, :nb].copy(), ver_req[bi], n_hyp,
                 ver_rot[bi].copy(), ver_rms[bi], counts)
     status = STATUS_AMBIGUOUS if ambiguous else STATUS_NONE
-    return status, empty, empty, 0, n_hyp, np.eye(3), np.inf, counts
+    rot_none = np.zeros((3, 3))
+    for ax in range(3):
+        rot_none[ax, ax] = 1.0
+    return status, empty, empty, 0, n_hyp, rot_none, np.inf, counts
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

@@ -52,3 +52,38 @@ def test_compiled_kvector_equals_the_checked_kvector():
         order, s, k, a1, b1 = kvector_build(v)
         assert np.array_equal(order, kv.order) and np.array_equal(s, kv.sorted_values) and np.array_equal(k, kv.k)
         assert (a1, b1) == (kv.a1, kv.b1)
+
+
+def _sort_cases():
+    """Arrays with distinct values, many ties, a bin crowded past the bucket sort's insertion limit, a subnormal
+    range (the bucket sort's fallback) and the short lengths of the insertion paths."""
+    rng = np.random.default_rng(11)
+    cases = [np.empty(0), np.array([2.5]), np.array([3.0, -1.0]), rng.normal(size=16), rng.normal(size=17)]
+    cases += [rng.normal(size=1000), rng.integers(0, 4, 700).astype(float)]
+    cases.append(np.concatenate([rng.normal(size=200), np.full(100, 0.25) + rng.normal(size=100) * 1e-12]))
+    cases.append(1e-310 + rng.integers(0, 3, 300) * 5e-324)
+    return cases
+
+
+def test_compiled_stable_argsort_is_numpys_stable_permutation():
+    from startracker.kernels.kvector import stable_argsort
+
+    for v in _sort_cases():
+        assert np.array_equal(stable_argsort(v), np.argsort(v, kind="stable"))
+
+
+def test_compiled_sort_median_and_search_equal_numpy():
+    from startracker.kernels.kvector import median_value, search_sorted, sort_values
+
+    rng = np.random.default_rng(12)
+    for v in _sort_cases():
+        assert np.array_equal(sort_values(v), np.sort(v))
+        ints = rng.integers(-40, 40, v.size)
+        assert np.array_equal(sort_values(ints), np.sort(ints))
+        if v.size:  # bit for bit, the mean of the two middle values included
+            assert np.float64(median_value(v)).tobytes() == np.median(v).tobytes()
+        s = np.sort(v)
+        for x in np.concatenate([s[:: max(1, s.size // 7)], [-np.inf, -3.0, 0.25, 3.0, np.inf]]):
+            assert search_sorted(s, x, False) == np.searchsorted(s, x, side="left")
+            assert search_sorted(s, x, True) == np.searchsorted(s, x, side="right")
+    assert np.isnan(median_value(np.empty(0)))

@@ -4,8 +4,11 @@ A kernel is a plain, public function on float64 arrays of documented shapes and 
 public API of each room (``startracker.rotations``, ``startracker.track``, ...) validates its arguments once and then
 calls the kernel; code that has already validated (the star tracker, the env) calls the kernel directly. Kernels
 never draw random numbers: a stochastic step receives its draws from the caller's ``numpy.random.Generator``.
-Where a kernel is on the per-frame hot path it is compiled with numba (``@njit(cache=True)``); the others are
-vectorised numpy. ``docs/design.md`` ("Validation and kernels") says how to add one.
+Where a kernel is on the per-frame hot path it is compiled with numba (``@njit(cache=True, no_cfunc_wrapper=True)``:
+nothing takes a kernel's C-callback address, and that wrapper is a few percent of the first compilation); a private
+helper that only compiled code calls also gets ``no_cpython_wrapper=True`` (calling it from Python would crash the
+interpreter, which is why only underscore names, never called from Python, get it). The others are vectorised
+numpy. ``docs/design.md`` ("Validation and kernels") says how to add one.
 """
 
 from __future__ import annotations

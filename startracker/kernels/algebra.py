@@ -25,19 +25,19 @@ __all__ = [
 ]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def det3_entries(a00, a01, a02, a10, a11, a12, a20, a21, a22):
     """Determinant of the 3×3 matrix of the nine entries (row-major), by the first row's cofactors."""
     return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def det3(m):
     """Determinant of a 3×3 matrix ``m`` (shape (3, 3))."""
     return det3_entries(m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0], m[2, 1], m[2, 2])
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def inv_transpose3(m, d):
     """Inverse transpose of a 3×3 matrix with determinant ``d`` (the cofactor matrix over ``d``), shape (3, 3)."""
     c = np.empty((3, 3))
@@ -53,7 +53,7 @@ def inv_transpose3(m, d):
     return c
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def quat_multiply_into(a, b, out):
     """Hamilton product ``a ⊗ b`` of two (4,) quaternions, written into ``out`` (4,) (not aliasing ``a``, ``b``)."""
     out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
@@ -62,7 +62,7 @@ def quat_multiply_into(a, b, out):
     out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def quat_normalize_canonical(q):
     """Scale the (4,) quaternion ``q`` in place to unit norm, canonical sign."""
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
@@ -75,7 +75,7 @@ def quat_normalize_canonical(q):
         q[i] = sign * q[i] / n
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def quat_to_rotation(q, m):
     """Rotation matrix ``m`` (3, 3, written in place) of the (4,) quaternion ``q``, normalised first."""
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
@@ -91,7 +91,7 @@ def quat_to_rotation(q, m):
     m[2, 2] = 1 - 2 * (x * x + y * y)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def quat_from_rotation(m):
     """Unit canonical quaternion of a proper rotation matrix (Shepperd's method).
 
@@ -130,7 +130,7 @@ def quat_from_rotation(m):
     return q
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def mahalanobis3(s, d0, d1, d2):
     """``dᵀ S⁻¹ d`` for a symmetric (3, 3) ``s`` and the vector (d0, d1, d2), by Cholesky ``S = L Lᵀ`` (then
     ``|L⁻¹ d|²``); ``inf`` when ``s`` is not positive definite."""

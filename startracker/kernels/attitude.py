@@ -23,7 +23,7 @@ __all__ = ["davenport_quaternion", "symmetric_min_eigenvalue", "solve_wahba_one"
 RAD_TO_ARCSEC = 180.0 / np.pi * 3600.0
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _cofactor4(m, i, j):
     """Cofactor (i, j) of a 4×4 matrix: (-1)^(i+j) times the minor without row i and column j."""
     r0, r1, r2 = (1, 2, 3) if i == 0 else ((0, 2, 3) if i == 1 else ((0, 1, 3) if i == 2 else (0, 1, 2)))
@@ -32,7 +32,7 @@ def _cofactor4(m, i, j):
     return -d if (i + j) % 2 else d
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def davenport_quaternion(s, q):
     """Davenport's q-method: the quaternion maximising ``Σ w r · (A(q) b)`` from ``S = Σ w b rᵀ`` (normalised by Σ w).
 
@@ -115,7 +115,7 @@ def davenport_quaternion(s, q):
     quat_normalize_canonical(q)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def symmetric_min_eigenvalue(a):
     """Smallest eigenvalue of a symmetric 3×3 matrix (closed form, Smith 1961), shape (3, 3) -> float."""
     p1 = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
@@ -132,7 +132,7 @@ def symmetric_min_eigenvalue(a):
     return qm + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def solve_wahba_one(b, r, w, m, q, cov, ang):
     """One Wahba problem: optimal attitude, QUEST covariance and RMS residual.
 
@@ -221,7 +221,7 @@ def solve_wahba_one(b, r, w, m, q, cov, ang):
     return math.sqrt(ss / max(n_used, 1)) * RAD_TO_ARCSEC, ok
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def residual_angle_rad(rot, b, r):
     """Angle between ``rot @ b`` and ``r``, rad: ``atan2(|rot b × r|, rot b · r)``; b, r shape (3,), rot (3, 3)."""
     x = rot[0, 0] * b[0] + rot[0, 1] * b[1] + rot[0, 2] * b[2]
@@ -233,7 +233,7 @@ def residual_angle_rad(rot, b, r):
     return math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), x * r[0] + y * r[1] + z * r[2])
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def solve_wahba_batch(b, r, sigma, m):
     """B independent Wahba problems (:func:`solve_wahba_one` each).
 

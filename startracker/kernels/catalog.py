@@ -12,10 +12,12 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.kvector import search_sorted, sort_values
+
 __all__ = ["cone_search_sorted_z"]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def cone_search_sorted_z(vectors_by_z, z_sorted, order, direction, radius_rad, chord_max):
     """Indices of the stars within ``radius_rad`` of ``direction``.
 
@@ -42,8 +44,8 @@ def cone_search_sorted_z(vectors_by_z, z_sorted, order, direction, radius_rad, c
     theta = math.acos(min(1.0, max(-1.0, direction[2])))
     z_lo = math.cos(min(math.pi, theta + radius_rad)) - 1e-9
     z_hi = math.cos(max(0.0, theta - radius_rad)) + 1e-9
-    lo = np.searchsorted(z_sorted, z_lo, side="left")
-    hi = np.searchsorted(z_sorted, z_hi, side="right")
+    lo = search_sorted(z_sorted, z_lo, False)
+    hi = search_sorted(z_sorted, z_hi, True)
     c2 = chord_max * chord_max
     out = np.empty(hi - lo, dtype=np.int64)
     n = 0
@@ -54,4 +56,4 @@ def cone_search_sorted_z(vectors_by_z, z_sorted, order, direction, radius_rad, c
         if dx * dx + dy * dy + dz * dz <= c2:
             out[n] = order[j]
             n += 1
-    return np.sort(out[:n])
+    return sort_values(out[:n])

@@ -41,13 +41,13 @@ _SQRT_2PI = math.sqrt(2.0 * math.pi)
 _INV_SQRT_PI = 1.0 / math.sqrt(math.pi)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _ndtr(x):
     """Standard normal CDF."""
     return 0.5 * math.erfc(-x / math.sqrt(2.0))
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, peak_f, photon_f, bg_f, lock_f,
             min_log_ratio, intensified):
     """One spot of :func:`spot_theory`: the 13 values of ``THEORY_COLUMNS``."""
@@ -114,7 +114,7 @@ def _theory_se(s_units, gain, f2, se2, se, sigma_o, c_splash, length, var_b, sd_
             area, peak)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, factors, intensified):
     """Closed-form statistics of a thresholded centre of mass, spot by spot.
 
@@ -171,7 +171,7 @@ def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _columns(x, width):
     """Counting sort of the points into columns at least ``width`` wide (at most about one per point): the
     column of each point (K,), the points by column then index (K,), and where each column starts (n_col + 2,),
@@ -205,7 +205,7 @@ def _columns(x, width):
     return col, order, start
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def candidate_pairs(xy, r):
     """Pairs ``(i, j)``, ``i < j``, of points closer than ``r`` along both x and y (a superset of the pairs
     within ``r``): points sorted into columns at least ``r`` wide, each compared with those after it in its
@@ -251,7 +251,7 @@ def candidate_pairs(xy, r):
     return res
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _find(parent, i):
     root = i
     while parent[root] != root:
@@ -263,7 +263,7 @@ def _find(parent, i):
     return root
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _candidates(xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s, t_end_rel_s,
                 cosmic_start_xy, cosmic_end_xy, cosmic_e, n_cols, n_rows):
     """The candidate spots on the detector with a signal: draw row (K,), geometry (K, 6) = x, y, dx, dy, length,
@@ -344,7 +344,7 @@ def _candidates(xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, deb
     return c_id[:k], c_g[:k], c_src[:k], n_optical, n_star
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma):
     """Theory, detection and measurement of the candidates: the detected rows (D,), and per detection (D, 8) =
     truth x, y, measured x, y, charge (e⁻), expected peak (e⁻), area (px), background variance (e⁻²), the
@@ -435,7 +435,7 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
     return rows[:nk], out[:nk], reach[:nk], pair[:nk]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def profile_terms(se2, half):
     """The constants of one spot's expected profile along the line to a neighbour (:func:`profile_at`): a Gaussian
     of variance ``se2`` px² smeared over a streak of half length ``half`` px along that line (its projection).
@@ -453,7 +453,7 @@ def profile_terms(se2, half):
     return False, k, 2.0 * math.erf(half * k)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def profile_at(s, peak, half, terms):
     """Expected signal (e⁻) of a spot at distance ``s`` px (>= 0) from its centre along the line to a neighbour,
     ``peak`` e⁻ at the centre: ``peak exp(−s² / (2 se2))`` when still, else
@@ -465,7 +465,7 @@ def profile_at(s, peak, half, terms):
     return peak * (math.erf((s + half) * k) - math.erf((s - half) * k)) / terms[2]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, lows):
     """The saddle of two spots' summed profiles: the least of ``a[k] + b[k]`` over the 33 points ``s = d k / 32``
     of the segment between their centres, the first of equals, with ``a[k] = profile_at(s, peak_i, …)`` and
@@ -540,7 +540,7 @@ def saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, low
     return best_k
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _signal_variance(p, pr, f2):
     """Variance (e⁻²) of a pixel's signal ``p`` e⁻ from one spot: intensified photon clumping and splash, or shot
     noise (the terms of :func:`spot_theory`'s peak variance)."""
@@ -549,7 +549,7 @@ def _signal_variance(p, pr, f2):
     return f2 * p
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b, thr_e, f2, terms_i, terms_j, a, b,
                        lows):
     """Probability that two spots ``d`` px apart join into one 8-connected component above the threshold.
@@ -589,7 +589,7 @@ def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b,
     return 1.0 - miss * miss
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _touching(det, reach, pair, k_sigma, f2):
     """Union-find labels (K,) (the smallest member of each group) of the spots that join into one component, and
     whether each touches another. Two spots join with :func:`_merge_probability` (the saddle of their summed
@@ -662,7 +662,7 @@ def _touching(det, reach, pair, k_sigma, f2):
     return parent, touched
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def order_decreasing(key):
     """Stable order of decreasing ``key`` (K,) (float64, C-contiguous, no NaN): a least-significant-digit radix
     sort on the bits.
@@ -710,7 +710,7 @@ def order_decreasing(key):
     return idx
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _assemble(det, reach, pair, src, rows, n_star, n_optical, kinds, sensor, background, k_sigma, n_extra):
     """Merge the touching detections and finish them (DN, area, saturation, SNR): the columns of the result,
     with room for ``n_extra`` single-pixel detections after them; returns the arrays and the count."""
@@ -787,7 +787,7 @@ def _assemble(det, reach, pair, src, rows, n_star, n_optical, kinds, sensor, bac
     return f, lab, area, sat, q
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _single_pixels(f, lab, area, sat, q, hot_index, hot_dark_e_per_s, z_hot, noise_index, noise_dn, background, sensor,
                    k_sigma, n_cols, kinds):
     """Append the hot pixels that cross the threshold and the background's crossings from row ``q``; returns the
@@ -821,7 +821,7 @@ def _single_pixels(f, lab, area, sat, q, hot_index, hot_dark_e_per_s, z_hot, noi
     return q
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _put_pixel(f, lab, area, sat, q, col, row, signal_dn, saturated, sigma_dn, kind):
     f[q, 0] = col
     f[q, 1] = row
@@ -837,7 +837,7 @@ def _put_pixel(f, lab, area, sat, q, col, row, signal_dn, saturated, sigma_dn, k
     sat[q] = saturated
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s,
                         t_end_rel_s, cosmic_start_xy, cosmic_end_xy, cosmic_e, hot_index, hot_dark_e_per_s,
                         noise_index, noise_dn, u_detect, z_spot, z_hot, background, sensor, factors, k_sigma, n_cols,

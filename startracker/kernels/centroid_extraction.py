@@ -25,7 +25,7 @@ __all__ = [
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _find(parent, i):
     while parent[i] != i:
         parent[i] = parent[parent[i]]
@@ -33,7 +33,7 @@ def _find(parent, i):
     return i
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def sparse_components(above_lin, n_rows, n_cols, buf, uniq, pos):
     """8-connected components of a set of pixels on a detector.
 
@@ -94,7 +94,7 @@ def sparse_components(above_lin, n_rows, n_cols, buf, uniq, pos):
     return labels, n_comp
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def measure_components(labels, n_comp, rows, cols, signal, saturated_px, noise_px):
     """Centre of mass and photometry of every component (paper 002 §3.1, eqs. 1–3).
 
@@ -153,13 +153,13 @@ def measure_components(labels, n_comp, rows, cols, signal, saturated_px, noise_p
     return sx, sy, inten, area, sat, noise, peak, peak_pixel
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _pixel_fraction(u, a, b, inv_sigma):
     """Fraction of a unit Gaussian centred at u falling in [a, b] (paper 002 eq. 5)."""
     return 0.5 * (math.erfc((a - u) * inv_sigma * _INV_SQRT2) - math.erfc((b - u) * inv_sigma * _INV_SQRT2))
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def gaussian_axis_offset(i_minus, i_0, i_plus, sigma_px):
     """Sub-pixel offset along one axis from the brightest pixel and its two neighbours (paper 002 §3.2).
 
@@ -197,7 +197,7 @@ def gaussian_axis_offset(i_minus, i_0, i_plus, sigma_px):
     return side * 0.5 * (lo + hi)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def sigma_from_three(i_minus, i_0, i_plus, default_px):
     """PSF σ from the log-parabola through three pixels, minus the pixel integration (1/12 px²), px.
 
@@ -214,7 +214,7 @@ def sigma_from_three(i_minus, i_0, i_plus, default_px):
     return math.sqrt(min(s2, 25.0))
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def gaussian_refine(x, y, peak_row, peak_col, i_0, i_left, i_right, i_up, i_down, saturated, psf_sigma_px):
     """Replace the centre of mass by the Gaussian interpolation where it can be formed (in place).
 
@@ -249,7 +249,7 @@ def gaussian_refine(x, y, peak_row, peak_col, i_0, i_left, i_right, i_up, i_down
             y[k] = peak_row[k] + dy
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def rank_components(intensity, area, noise, min_area_px):
     """Components kept (area ≥ min_area_px, positive intensity), brightest first, and their rough SNR.
 
@@ -276,7 +276,7 @@ def rank_components(intensity, area, noise, min_area_px):
     return keep, snr
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _sparse_value(r, c, n_rows, n_cols, buf, uniq, dn, background_dn):
     if r < 0 or r >= n_rows or c < 0 or c >= n_cols:
         return np.nan
@@ -287,7 +287,7 @@ def _sparse_value(r, c, n_rows, n_cols, buf, uniq, dn, background_dn):
     return dn[k] - background_dn[k]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def detect_sparse(lin, dn, background_dn, threshold_dn, saturation_dn, k_sigma, n_rows, n_cols, buf, gaussian,
                   psf_sigma_px, min_area_px, entry_pixel, entry_source, entry_e):
     """Components, centroids and truth owners of a sparse frame.

@@ -12,7 +12,7 @@ from numba import njit
 __all__ = ["mutual_nearest", "register_to_green", "fuse_channels"]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def mutual_nearest(a, b, radius_px):
     """Index pairs (i into ``a``, j into ``b``) that are each other's nearest neighbour closer than ``radius_px``.
 

@@ -23,7 +23,8 @@ which side is the widest) come from a coarse cumulative count of the pair angles
 One call per frame. :func:`identify_pyramid_detections` takes the raw detections to labels and attitude:
 :func:`prepare_detections` (order, detector bounds, unit vectors, duplicates, angle tables), the
 :func:`smart_triads` of the pool, :func:`pyramid_search` and :func:`solve_identified` (final least
-squares and labels), so :func:`startracker.identify.identify` spends one compiled call on a pyramid frame.
+squares and labels), so :func:`startracker.identify.identify` spends one call (four compiled ones) on a
+pyramid frame.
 
 The module is over 600 lines because it holds the compiled core of every identification method: the
 pyramid loop, the shared verification and least squares, the vote table and the frame tables call the same
@@ -38,6 +39,7 @@ import numpy as np
 from numba import njit
 
 from startracker.kernels.algebra import det3, inv_transpose3, quat_from_rotation
+from startracker.kernels.kvector import stable_argsort_into
 from startracker.kernels.optics import unproject_pinhole
 
 __all__ = [
@@ -103,7 +105,7 @@ def build_sky_grid(vectors: np.ndarray, g: int = GRID_CELLS) -> tuple[np.ndarray
     return cell_start, cell_stars
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def grid_cell(x: float, g: int) -> int:
     """Cell index along one axis of a coordinate in [-1, 1]."""
     c = int((x + 1.0) * (0.5 * g))
@@ -114,7 +116,7 @@ def grid_cell(x: float, g: int) -> int:
     return c
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def nearest_two(w, nav, cell_start, cell_stars, g, max_chord, dist, idx):
     """Two nearest navigation stars of each direction within a chord radius (k-d tree semantics).
 
@@ -168,7 +170,7 @@ def nearest_two(w, nav, cell_start, cell_stars, g, max_chord, dist, idx):
         idx[q, 1] = i1
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def select_matches(dist, idx, chord):
     """Unambiguous one-to-one matches from a two-nearest-neighbour query.
 
@@ -224,7 +226,7 @@ def select_matches(dist, idx, chord):
     return det, nav, d
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def rotation_svd(b, r):
     """Unweighted Wahba rotation ``R`` with ``r ≈ R b`` (SVD, proper).
 
@@ -277,7 +279,7 @@ def rotation_svd(b, r):
     return rot
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def solve_attitude(b, r, sigma_rad):
     """Final least squares: Wahba by SVD with equal weights, QUEST covariance, RMS residual.
 
@@ -315,7 +317,13 @@ def solve_attitude(b, r, sigma_rad):
         info[i, i] += w1 * m
     ev = np.linalg.eigvalsh(info)
     if ev[0] <= 1e-10 * max(w1 * m, 1e-300):
-        return False, np.array([1.0, 0.0, 0.0, 0.0]), np.inf, np.full((3, 3), np.inf)
+        q_none = np.zeros(4)
+        q_none[0] = 1.0
+        cov_none = np.empty((3, 3))
+        for i in range(3):
+            for j in range(3):
+                cov_none[i, j] = np.inf
+        return False, q_none, np.inf, cov_none
     acc = 0.0
     for t in range(m):
         rb0 = rot[0, 0] * b[t, 0] + rot[0, 1] * b[t, 1] + rot[0, 2] * b[t, 2]
@@ -329,7 +337,7 @@ def solve_attitude(b, r, sigma_rad):
     return True, quat_from_rotation(rot), math.sqrt(acc / m), np.linalg.inv(info)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def solve_identified(v, nav, nav_hip, index, det, nav_idx, n_input, sigma_rad):
     """Final least squares on a verified match set, and the HIP label of every input detection.
 
@@ -360,7 +368,9 @@ def solve_identified(v, nav, nav_hip, index, det, nav_idx, n_input, sigma_rad):
     m = det.shape[0]
     b = np.empty((m, 3))
     r = np.empty((m, 3))
-    star_ids = np.full(n_input, -1, dtype=np.int64)
+    star_ids = np.empty(n_input, dtype=np.int64)
+    for t in range(n_input):
+        star_ids[t] = -1
     for t in range(m):
         for ax in range(3):
             b[t, ax] = v[det[t], ax]
@@ -370,7 +380,7 @@ def solve_identified(v, nav, nav_hip, index, det, nav_idx, n_input, sigma_rad):
     return ok, q, rms, cov, star_ids
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def binom_tail(n, p, e):
     """P(Binomial(n, p) >= e), summed from the tail term upwards (accurate for tiny p)."""
     if e <= 0:
@@ -394,7 +404,7 @@ def binom_tail(n, p, e):
     return min(total, 1.0)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def poisson_tail(mu, k):
     """P(Poisson(mu) >= k)."""
     if k <= 0:
@@ -407,7 +417,7 @@ def poisson_tail(mu, k):
     return max(0.0, 1.0 - cdf)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def required_matches(lam, n_det, p, false_alarm):
     """Smallest ``3 + e`` matched detections with ``λ · P(Binomial(n_det − 3, p) >= e) <= false_alarm``.
 
@@ -422,7 +432,7 @@ def required_matches(lam, n_det, p, false_alarm):
     return n_det + 1
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def triangle_false_rate(ang, tol, i, j, k, n_stars, clumping):
     """Expected number of wrong catalog triangles matching detections (i, j, k) (``λ``).
 
@@ -446,7 +456,7 @@ def triangle_false_rate(ang, tol, i, j, k, n_stars, clumping):
     return 2.0 * n_stars**3 * eps**3 * radius / math.pi * clumping
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def kvector_range(s, kk, a1, b1, lo, hi):
     """Exact index range of the ascending values ``s`` inside ``[lo, hi]`` (k-vector look-up, paper 000).
 
@@ -479,7 +489,7 @@ def kvector_range(s, kk, a1, b1, lo, hi):
     return start, max(stop, start)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def rotate_all(rot, v):
     """``v @ rot.T``: rows of ``v`` (n, 3) rotated by ``rot`` (3, 3)."""
     out = np.empty_like(v)
@@ -489,7 +499,7 @@ def rotate_all(rot, v):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, max_rounds, stable_fit, dist, idx):
     """Refit the attitude on every match and match again until the matches stop changing.
 
@@ -501,7 +511,9 @@ def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, m
     det, navm, dm : ndarray
         Final matches and their chord distances; ``dist`` / ``idx`` hold the last query.
     """
-    rot = np.eye(3)
+    rot = np.zeros((3, 3))
+    for i in range(3):
+        rot[i, i] = 1.0
     dm = np.empty(0)
     converged = False
     for _ in range(max_rounds):
@@ -543,7 +555,7 @@ def refine_matches(v, nav, cell_start, cell_stars, g, det, navm, chord, n_req, m
     return converged, rot, det, navm, dm
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_rot, lam, false_alarm,
                       match_tol_rad, dens_eff_per_sr, max_rounds, stable_fit, misfit_p):
     """Verification of one hypothesis (see :mod:`startracker.identify.verification`).
@@ -643,21 +655,21 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
     return True, rot, det, navm, n_req, rms
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def triple_product(a, b, c):
     """a · (b × c) of three 3-vectors."""
     return (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
             + a[2] * (b[0] * c[1] - b[1] * c[0]))
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def admissible(star_key, key_lo, key_hi, p, s):
     """Whether star ``s`` may stand for detection ``p`` under the candidate filter."""
     k = star_key[s]
     return k >= key_lo[p] and k <= key_hi[p]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang, tol, p, q):
     """Catalog pair candidates (both orientations) in the window of detections (p, q), and those kept."""
     start, stop = kvector_range(s_ang, kk, a1, b1, ang[p, q] - tol[p, q], ang[p, q] + tol[p, q])
@@ -697,7 +709,7 @@ def pair_count_table(sorted_angles: np.ndarray, n_bins: int = 8192) -> tuple[np.
     return cdf, bin_rad
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def cdf_at(cdf, bin_rad, x):
     """The count table of :func:`pair_count_table` at angle ``x`` (linear inside a bin)."""
     nb = cdf.shape[0] - 1
@@ -710,14 +722,14 @@ def cdf_at(cdf, bin_rad, x):
     return cdf[b] + (u - b) * (cdf[b + 1] - cdf[b])
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def window_estimate(cdf, bin_rad, lo, hi):
     """Estimated catalog pair candidates (both orientations) with angles in ``[lo, hi]``, from
     :func:`pair_count_table`."""
     return 2.0 * (cdf_at(cdf, bin_rad, hi) - cdf_at(cdf, bin_rad, lo))
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b1, first, second, cell_start, cell_stars,
                    g, count_cdf, count_bin_rad, star_key, key_lo, key_hi, filtered, rate, clumping, dens_eff_per_sr, match_tol_rad,
                    false_alarm, max_rounds, stable_fit, misfit_p):
@@ -780,9 +792,13 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
     ambiguous = False
     n_hyp = 0
     counts = np.zeros(2, dtype=np.int64)
-    seen = np.zeros((ang.shape[0], ang.shape[0]), dtype=np.bool_)
+    # Allocations spelt np.empty / np.zeros with the element types other kernels use: each other spelling
+    # (np.full, a bool matrix of zeros, np.array of a list) compiles one more numba function.
+    seen = np.zeros((ang.shape[0], ang.shape[0]), dtype=np.int64)
     # int32 work arrays: the join's random accesses then stay in the first-level caches.
-    stamp = np.full(n_nav, -1, dtype=np.int32)
+    stamp = np.empty(n_nav, dtype=np.int32)
+    for s in range(n_nav):
+        stamp[s] = -1
     head = np.empty(n_nav, dtype=np.int32)
     chord = 2.0 * math.sin(match_tol_rad / 2.0)
     n4 = min(max(pool, 4), n)
@@ -793,7 +809,9 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
     w1 = np.empty((1, 3))
     d1 = np.empty((1, 2))
     i1 = np.empty((1, 2), dtype=np.int64)
-    order = np.arange(triads.shape[0])
+    order = np.empty(triads.shape[0], dtype=np.int64)
+    for t in range(triads.shape[0]):
+        order[t] = t
     # Window sizes (both orientations) from the coarse count table: a look-up in the large k-vector costs a
     # cache miss or two per window, and most windows of the pool are never joined.
     m_ang = ang.shape[0]
@@ -811,10 +829,14 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
         for t in range(triads.shape[0]):
             x, y, z = cnt[triads[t, 0], triads[t, 1]], cnt[triads[t, 0], triads[t, 2]], cnt[triads[t, 1], triads[t, 2]]
             cost[t] = x + y + z - max(x, max(y, z))
+        block = np.empty(cheap_first)
+        sub = np.empty(cheap_first, dtype=np.int64)
         for b0 in range(0, triads.shape[0], cheap_first):
-            b1_ = min(b0 + cheap_first, triads.shape[0])
-            sub = np.argsort(cost[b0:b1_], kind="mergesort")
-            for u in range(b1_ - b0):
+            nb = min(b0 + cheap_first, triads.shape[0]) - b0
+            for u in range(nb):
+                block[u] = cost[b0 + u]
+            stable_argsort_into(block[:nb], sub[:nb])
+            for u in range(nb):
                 order[b0 + u] = b0 + sub[u]
     for tt in range(triads.shape[0]):
         t = order[tt]
@@ -827,16 +849,16 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
                                       tol, i, k)
             c_jk, n_jk = window_count(s_ang, kk, a1, b1, first, second, star_key, key_lo, key_hi, filtered, ang,
                                       tol, j, k)
-            if not seen[i, j]:
-                seen[i, j] = True
+            if seen[i, j] == 0:
+                seen[i, j] = 1
                 counts[0] += c_ij
                 counts[1] += n_ij
-            if not seen[i, k]:
-                seen[i, k] = True
+            if seen[i, k] == 0:
+                seen[i, k] = 1
                 counts[0] += c_ik
                 counts[1] += n_ik
-            if not seen[j, k]:
-                seen[j, k] = True
+            if seen[j, k] == 0:
+                seen[j, k] = 1
                 counts[0] += c_jk
                 counts[1] += n_jk
             kij, kik, kjk = float(n_ij), float(n_ik), float(n_jk)
@@ -935,8 +957,10 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
                 if not found:
                     continue
             n_hyp += 1
-            det3 = np.array([i, j, k], dtype=np.int64)
-            nav3 = np.array([a, b, c], dtype=np.int64)
+            det3 = np.empty(3, dtype=np.int64)
+            nav3 = np.empty(3, dtype=np.int64)
+            det3[0], det3[1], det3[2] = i, j, k
+            nav3[0], nav3[1], nav3[2] = a, b, c
             ok, rot_v, det_v, nav_v, req_v, rms_v = verify_hypothesis(
                 v, nav, cell_start, cell_stars, g, det3, nav3, rot, True, lam, false_alarm, match_tol_rad,
                 dens_eff_per_sr, max_rounds, stable_fit, misfit_p)
@@ -978,10 +1002,13 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
         return (STATUS_OK, ver_det[bi, :nb].copy(), ver_nav[bi, :nb].copy(), ver_req[bi], n_hyp,
                 ver_rot[bi].copy(), ver_rms[bi], counts)
     status = STATUS_AMBIGUOUS if ambiguous else STATUS_NONE
-    return status, empty, empty, 0, n_hyp, np.eye(3), np.inf, counts
+    rot_none = np.zeros((3, 3))
+    for ax in range(3):
+        rot_none[ax, ax] = 1.0
+    return status, empty, empty, 0, n_hyp, rot_none, np.inf, counts
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def smart_triads(n, max_triads):
     """The first ``max_triads`` triads of Mortari's "smart" order over ``n`` stars.
 
@@ -1010,15 +1037,17 @@ STATUS_PARALLEL = 4
 STATUS_RESIDUAL = 5
 
 
-@njit(cache=True)
 def identify_pyramid_detections(xy, intensities, have_intensities, mag_zero_point, width, height, focal_length_mm,
                                 k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles, dup_cos, pair_sigma_rad, floor_rad,
                                 aberration_scale, max_stars, max_triads, cheap_first, nav, s_ang, kk, a1, b1, first,
                                 second, cell_start, cell_stars, g, count_cdf, count_bin_rad, nav_hip, clumping,
                                 dens_eff_per_sr, sigma_rad, match_tol_rad, false_alarm, max_rounds, stable_fit,
                                 misfit_p):
-    """Pyramid lost-in-space on one frame of detections, in one call: :func:`prepare_detections`, the
-    :func:`smart_triads` of the pool, :func:`pyramid_search` (no candidate filter) and :func:`solve_identified`.
+    """Pyramid lost-in-space on one frame of detections: :func:`prepare_detections`, the :func:`smart_triads` of
+    the pool, :func:`pyramid_search` (no candidate filter) and :func:`solve_identified`.
+
+    Plain Python over four compiled calls (a few microseconds more than one): compiled as one function it would
+    carry the whole tree of compiled code below it once more, about 4 s of the first compilation.
 
     Parameters
     ----------
@@ -1055,13 +1084,13 @@ def identify_pyramid_detections(xy, intensities, have_intensities, mag_zero_poin
     index, v, mag, ang, tol = prepare_detections(xy, intensities, have_intensities, mag_zero_point, width, height,
                                                  focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles,
                                                  dup_cos, pair_sigma_rad, floor_rad, aberration_scale)
-    n = index.shape[0]
+    n = int(index.shape[0])
     none_ids = np.full(k, -1, dtype=np.int64)
     q0 = np.array([1.0, 0.0, 0.0, 0.0])
     cov0 = np.full((3, 3), np.inf)
     if n < 3:
         return STATUS_FEW, none_ids, q0, cov0, 0, 0, 0, n, np.inf
-    pool = min(n, max_stars, ang.shape[0])
+    pool = min(n, max_stars, int(ang.shape[0]))
     triads = smart_triads(pool, max_triads)
     no_key = np.zeros(1)
     status, det, nav_idx, n_req, n_hyp, rot, rms, counts = pyramid_search(
@@ -1075,10 +1104,10 @@ def identify_pyramid_detections(xy, intensities, have_intensities, mag_zero_poin
         return STATUS_PARALLEL, none_ids, q0, cov0, 0, n_req, n_hyp, n, np.inf
     if rms_f > match_tol_rad:
         return STATUS_RESIDUAL, none_ids, q0, cov0, 0, n_req, n_hyp, n, np.inf
-    return STATUS_OK, star_ids, q, cov, det.shape[0], n_req, n_hyp, n, rms_f
+    return STATUS_OK, star_ids, q, cov, int(det.shape[0]), n_req, n_hyp, n, rms_f
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def cast_votes(ang, tol, pool, s_ang, kk, a1, b1, first, second, first_mag, second_mag, mag, mag_tol, use_mag,
                n_nav):
     """Geometric-voting table (see :mod:`startracker.identify.voting`).
@@ -1131,7 +1160,7 @@ def cast_votes(ang, tol, pool, s_ang, kk, a1, b1, first, second, first_mag, seco
     return votes
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def prepare_detections(xy, intensities, have_intensities, mag_zero_point, width, height, focal_length_mm,
                        k1_per_mm2, pixel_size_mm, ppx, ppy, n_angles, dup_cos, pair_sigma_rad, floor_rad,
                        aberration_scale):
@@ -1181,10 +1210,15 @@ def prepare_detections(xy, intensities, have_intensities, mag_zero_point, width,
         Window half-widths, rad.
     """
     k = xy.shape[0]
+    order = np.empty(k, dtype=np.int64)
     if have_intensities:
-        order = np.argsort(-intensities, kind="mergesort")
+        neg = np.empty(k)
+        for t in range(k):
+            neg[t] = -intensities[t]
+        stable_argsort_into(neg, order)
     else:
-        order = np.arange(k)
+        for t in range(k):
+            order[t] = t
     on = np.empty(k, dtype=np.int64)
     n_on = 0
     for t in range(k):

@@ -32,13 +32,13 @@ __all__ = [
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def normal_sf(t):
     """Upper tail ``Q(t) = P(Z > t)`` of the standard normal, accurate in both tails (float)."""
     return 0.5 * math.erfc(t * _INV_SQRT2)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def normal_isf(q):
     """Inverse upper tail: ``t`` with ``Q(t) = q`` for ``0 < q < 1`` (float).
 
@@ -69,7 +69,7 @@ def normal_isf(q):
     return t
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _upper_tail_hart(t):
     """``Q(t)`` for ``t >= 0`` by Hart's rational approximation (West 2005): absolute error < 2e-16 (relative
     error up to ~1e-8 in the far tail), half the cost of ``erfc``. For pixel fractions of a spot, where only the
@@ -98,7 +98,7 @@ def _upper_tail_hart(t):
     return e / b / 2.506628274631
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _axis_profile(edge0, n, centre, inv_sigma, out):
     """Fraction of a unit Gaussian (centre, σ) in each of n pixels whose first lower edge is edge0."""
     prev_t = (edge0 - centre) * inv_sigma
@@ -116,7 +116,7 @@ def _axis_profile(edge0, n, centre, inv_sigma, out):
         prev_v = v
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def render_spot_windows(sub_xy, sub_w, sigma_px, half_width_px, n_cols, n_rows, min_value):
     """Pixel-integrated Gaussian sub-spots summed into one window per spot.
 
@@ -220,7 +220,7 @@ def render_spot_windows(sub_xy, sub_w, sigma_px, half_width_px, n_cols, n_rows, 
     return lin[:n], val[:n], spot[:n]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def shift_intensified_spots(sub_xy, along, length_px, n_pe, charge_e, z, excess_noise_factor, optics_sigma_px):
     """Displace each intensified spot by the scatter of its photoelectrons and give it its random charge.
 
@@ -269,7 +269,7 @@ def shift_intensified_spots(sub_xy, along, length_px, n_pe, charge_e, z, excess_
     return out_xy, out_w
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _add_3x3(centres, n_cols, n_rows, src0, centre_e, lin, src, exp_e, n):
     for i in range(len(centres)):
         r0 = centres[i] // n_cols
@@ -289,7 +289,7 @@ def _add_3x3(centres, n_cols, n_rows, src0, centre_e, lin, src, exp_e, n):
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val, dir_src, hot_lin, hot_e, hot_src0,
                      false_lin, false_src0, n_cols, n_rows, buf):
     """The deduplicated pixels of a sparse frame and its entries (window pixels, 3×3 neighbourhoods).
@@ -386,7 +386,7 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
     return uniq[:n_u].copy(), inv[:n], src[:n], exp_e[:n], spot_u, direct_u, hot_u, false_u
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def pixels_to_dn(intensified, spot_e, opt_bg_pe, prnu, lin, z, charge_e, direct_e, hot_u, hot_e, hot_z, gain,
                  enf2_c, dark_e, read_var_e2, full_well_e, gain_e_per_dn, bias_dn, adc_max_dn):
     """Random DN of pixels from their expected signals and the caller's draws.
@@ -445,7 +445,7 @@ def pixels_to_dn(intensified, spot_e, opt_bg_pe, prnu, lin, z, charge_e, direct_
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def false_pixel_cells(col_edges, row_edges, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2,
                       prnu_sigma, gain_e_per_dn, bias_dn, saturation_dn, k_sigma):
     """Per cell of a grid: the background's crossing probability and its statistics at the cell centre.
@@ -502,7 +502,7 @@ def false_pixel_cells(col_edges, row_edges, opt0, opt_dx, opt_dy, cx, cy, gain, 
     return cum, p_out, mu_out, sd_out, z0_out, thr_out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def place_false_pixels(u_cell, u_col, u_row, u_tail, cum_lam, col_edges, row_edges, p, mu_e, sd_e, z0, thr_dn,
                        full_well_e, gain_e_per_dn, bias_dn, adc_max_dn):
     """Positions and DN of the background's threshold crossings from uniform draws.
@@ -549,7 +549,7 @@ def place_false_pixels(u_cell, u_col, u_row, u_tail, cum_lam, col_edges, row_edg
     return lin, dn
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def lookup_pixels(lin, buf, uniq):
     """Compact id of each pixel of ``lin`` (E,) in the sparse set ``uniq`` (U,) indexed by ``buf``, −1 if absent.
 
@@ -563,7 +563,7 @@ def lookup_pixels(lin, buf, uniq):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def spots_from_paths(paths, total, sigma_px):
     """Cut spot paths into segments no longer than 4σ and each segment into sub-spots at most σ/2 apart.
 
@@ -646,7 +646,7 @@ def spots_from_paths(paths, total, sigma_px):
     return sub_xy, sub_w, sigma, path, along, length
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def background_at_pixels(lin, n_cols, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2, prnu_sigma,
                          gain_e_per_dn, bias_dn, k_sigma):
     """The expected background of pixels: optical photoelectrons, level and detection threshold.

@@ -14,7 +14,7 @@ from numba import njit
 __all__ = ["sensor_samples"]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def sensor_samples(u, scale, b_const, b_gm, b_rw, phi, gm_drive, xi_gm, rw_step, xi_rw, white_sigma, xi_white,
                    limit):
     """Samples of a three-axis sensor: ``sat((1 + s) u + b_c + b_gm + b_rw + n)``, advancing its bias states.

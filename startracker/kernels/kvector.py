@@ -2,6 +2,12 @@
 
 The checked API and the method's description are in :mod:`startracker.kvector`; this module builds the same table
 in one compiled call for the tracker's per-frame DKVLUT (:mod:`startracker.kernels.track`).
+
+It also holds the compiled kernels' sorting and searching of sorted values (:func:`stable_argsort_into`,
+:func:`sort_values`, :func:`median_value`, :func:`search_sorted`). They stand in for ``np.argsort``, ``np.sort``,
+``np.median`` and ``np.searchsorted`` inside compiled code, with the same results on finite values: numba's own
+versions are generic code that takes seconds to compile per element type (about 4 s for ``np.sort``), and every
+kernel that calls them carries that code again into its own compiled module.
 """
 
 from __future__ import annotations
@@ -9,10 +15,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["kvector_build", "kvector_fill", "stable_argsort", "stable_argsort_into"]
+__all__ = ["kvector_build", "kvector_fill", "stable_argsort", "stable_argsort_into", "sort_values", "median_value",
+           "search_sorted"]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def kvector_build(values):
     """Sort ``values`` and tabulate the k-vector of paper 000 eqs. 1-3.
 
@@ -40,7 +47,7 @@ def kvector_build(values):
     return order, s, k, a1, b1
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def kvector_fill(values, order, s, k):
     """:func:`kvector_build` into preallocated arrays ``order``, ``s``, ``k`` (shape (n,) each); returns (a1, b1)."""
     n = values.shape[0]
@@ -63,7 +70,7 @@ def kvector_fill(values, order, s, k):
     return a1, b1
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def stable_argsort(values):
     """``np.argsort(values, kind="stable")`` (see :func:`stable_argsort_into`), shape (n,) -> int64 (n,)."""
     order = np.empty(values.shape[0], dtype=np.int64)
@@ -71,7 +78,7 @@ def stable_argsort(values):
     return order
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def stable_argsort_into(values, order):
     """``np.argsort(values, kind="stable")`` in O(n) for spread-out values: a bucket sort.
 
@@ -98,9 +105,9 @@ def stable_argsort_into(values, order):
             hi = v
     scale = (n - 1) / (hi - lo) if hi > lo else 0.0
     if not (scale < np.inf):  # a range so small (subnormal) its inverse overflows
-        fallback = np.argsort(values, kind="mergesort")
         for i in range(n):
-            order[i] = fallback[i]
+            order[i] = i
+        _merge_argsort(values, order, 0, n, np.empty(n, dtype=np.int64))
         return
     start = np.zeros(n + 1, dtype=np.int64)
     bins = np.empty(n, dtype=np.int64)
@@ -118,21 +125,154 @@ def stable_argsort_into(values, order):
         b = bins[i]
         order[fill[b]] = i
         fill[b] += 1
+    tmp = np.empty(0, dtype=np.int64)
     for b in range(n):
         a, e = start[b], start[b + 1]
         if e - a < 2:
             continue
         if e - a > 32:
-            seg = order[a:e].copy()
-            sub = np.argsort(values[seg], kind="mergesort")
-            for j in range(e - a):
-                order[a + j] = seg[sub[j]]
+            if tmp.shape[0] == 0:
+                tmp = np.empty(n, dtype=np.int64)
+            _merge_argsort(values, order, a, e, tmp)
         else:
-            for j in range(a + 1, e):
-                cur = order[j]
-                v = values[cur]
-                i = j - 1
-                while i >= a and values[order[i]] > v:
-                    order[i + 1] = order[i]
-                    i -= 1
-                order[i + 1] = cur
+            _insertion_argsort(values, order, a, e)
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _insertion_argsort(values, order, a, e):
+    """Stable insertion sort of ``order[a:e]`` by ``values[order]``."""
+    for j in range(a + 1, e):
+        cur = order[j]
+        v = values[cur]
+        i = j - 1
+        while i >= a and values[order[i]] > v:
+            order[i + 1] = order[i]
+            i -= 1
+        order[i + 1] = cur
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _merge_argsort(values, order, a, e, tmp):
+    """Stable sort of ``order[a:e]`` by ``values[order]``: insertion-sorted runs of 16, merged bottom-up.
+
+    ``tmp`` (int64, at least ``e`` long) is scratch. Stable, so the same permutation as numpy's stable sort.
+    """
+    run = 16
+    for r in range(a, e, run):
+        _insertion_argsort(values, order, r, min(r + run, e))
+    width = run
+    src, dst = order, tmp
+    in_tmp = False
+    while width < e - a:
+        for lo in range(a, e, 2 * width):
+            mid = min(lo + width, e)
+            hi = min(lo + 2 * width, e)
+            i, j = lo, mid
+            for t in range(lo, hi):
+                # the left element first on a tie: stable
+                if i < mid and (j >= hi or not values[src[j]] < values[src[i]]):
+                    dst[t] = src[i]
+                    i += 1
+                else:
+                    dst[t] = src[j]
+                    j += 1
+        src, dst = dst, src
+        in_tmp = not in_tmp
+        width *= 2
+    if in_tmp:
+        for t in range(a, e):
+            order[t] = src[t]
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def sort_values(a):
+    """``np.sort(a)`` for a 1-d array without NaN: an ascending copy (heapsort; insertion below 16 values).
+
+    Parameters
+    ----------
+    a : ndarray, shape (n,)
+        float64 or int64 values.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The values ascending, same dtype.
+    """
+    n = a.shape[0]
+    out = a.copy()
+    if n <= 16:
+        for j in range(1, n):
+            cur = out[j]
+            i = j - 1
+            while i >= 0 and out[i] > cur:
+                out[i + 1] = out[i]
+                i -= 1
+            out[i + 1] = cur
+        return out
+    # heapsort: build a max-heap, then move the maximum to the end n - 1 times
+    for start in range(n // 2 - 1, -1, -1):
+        _sift_down(out, start, n)
+    for end in range(n - 1, 0, -1):
+        top = out[0]
+        out[0] = out[end]
+        out[end] = top
+        _sift_down(out, 0, end)
+    return out
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _sift_down(h, root, n):
+    """Restore the max-heap property below ``root`` in ``h[:n]``."""
+    cur = h[root]
+    while True:
+        child = 2 * root + 1
+        if child >= n:
+            break
+        if child + 1 < n and h[child + 1] > h[child]:
+            child += 1
+        if not h[child] > cur:
+            break
+        h[root] = h[child]
+        root = child
+    h[root] = cur
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def median_value(a):
+    """``np.median(a)`` of a 1-d float64 array without NaN (NaN when empty): the middle value, or the mean
+    ``(lo + hi) / 2`` of the two middle values, as numpy computes it."""
+    n = a.shape[0]
+    if n == 0:
+        return np.nan
+    s = sort_values(a)
+    half = n >> 1
+    if n & 1 == 0:
+        return (s[half - 1] + s[half]) / 2
+    return s[half]
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def search_sorted(a, x, right):
+    """``np.searchsorted(a, x, side="right" if right else "left")`` for ascending ``a`` and a non-NaN ``x``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n,)
+        Ascending float64 values.
+    x : float
+    right : bool
+        False: the number of values ``< x``; True: the number of values ``<= x``.
+
+    Returns
+    -------
+    int
+    """
+    lo = 0
+    hi = a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] < x or (right and a[mid] == x):
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo

@@ -45,7 +45,7 @@ def project_pinhole(v: np.ndarray, focal_length_mm: float, k1_per_mm2: float, pi
     return xy / pixel_size_mm + principal_point_px, in_front
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def unproject_pinhole(xy, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy):
     """Distorted pixel coordinates to unit camera-frame directions (inverse of :func:`project_pinhole`).
 

@@ -17,6 +17,8 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.kvector import search_sorted
+
 __all__ = [
     "vector_norm",
     "cross",
@@ -40,7 +42,7 @@ _CONJ = np.array([1.0, -1.0, -1.0, -1.0])
 
 
 # ------------------------------------------------------------------------------------ compiled row loops
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _canon_into(q, out, k):
     """Write q (4,) into out[k] with its first non-zero component positive."""
     s = 1.0
@@ -52,7 +54,7 @@ def _canon_into(q, out, k):
         out[k, i] = s * q[i]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _normalize_rows(q):
     n = q.shape[0]
     out = np.empty((n, 4))
@@ -65,7 +67,7 @@ def _normalize_rows(q):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _canon_rows(q):
     n = q.shape[0]
     out = np.empty((n, 4))
@@ -74,7 +76,7 @@ def _canon_rows(q):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _multiply_rows(a, b):
     n = a.shape[0]
     out = np.empty((n, 4))
@@ -88,7 +90,7 @@ def _multiply_rows(a, b):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _to_matrix_rows(q):
     n = q.shape[0]
     r = np.empty((n, 3, 3))
@@ -107,7 +109,7 @@ def _to_matrix_rows(q):
     return r
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _exp_into(rx, ry, rz, out, k):
     """Unit quaternion of the rotation vector (rx, ry, rz) rad into out[k], canonical sign."""
     angle = math.sqrt(rx * rx + ry * ry + rz * rz)
@@ -124,7 +126,7 @@ def _exp_into(rx, ry, rz, out, k):
     out[k, 3] = s * scale * rz
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _from_rotvec_rows(rv):
     n = rv.shape[0]
     out = np.empty((n, 4))
@@ -133,7 +135,7 @@ def _from_rotvec_rows(rv):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _log_into(w, x, y, z, out, k):
     """Rotation vector (angle in [0, π]) of the unit quaternion (w, x, y, z) into out[k]."""
     if w < 0.0 or (w == 0.0 and (x < 0.0 or (x == 0.0 and (y < 0.0 or (y == 0.0 and z < 0.0))))):
@@ -150,7 +152,7 @@ def _log_into(w, x, y, z, out, k):
     out[k, 2] = scale * z
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _to_rotvec_rows(q):
     n = q.shape[0]
     out = np.empty((n, 3))
@@ -160,7 +162,7 @@ def _to_rotvec_rows(q):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def relative_rotvec_rows(a, b):
     """Rotation vector (n, 3), rad, angle in [0, π], of ``conj(a[k]) ⊗ b[k]`` for (n, 4) non-zero quaternions
     ``a``, ``b`` (the body-frame rotation from attitude ``a`` to ``b``): conjugate, product, normalisation and log
@@ -179,7 +181,7 @@ def relative_rotvec_rows(a, b):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _angle_between_rows(a, b):
     n = a.shape[0]
     out = np.empty(n)
@@ -197,7 +199,7 @@ def _angle_between_rows(a, b):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _integrate_rows(q, rv):
     """q (n, 4) unit, rv (n, 3) body-frame rotation vectors: normalize(q ⊗ exp(rv))."""
     n = q.shape[0]
@@ -206,7 +208,7 @@ def _integrate_rows(q, rv):
     return _normalize_rows(out)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _from_matrix_rows(m):
     """Shepperd's method (the largest of the four squared components picks the branch)."""
     n = m.shape[0]
@@ -242,7 +244,7 @@ def _from_matrix_rows(m):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _interpolate_rows(t, q, tq):
     """Slerp of the history (t (S,), q (S, 4) unit) at tq (Q,) clipped to [t[0], t[-1]]: on each interval the
     rotation a⁻¹b is scaled along its own axis, the shortest way round."""
@@ -253,7 +255,7 @@ def _interpolate_rows(t, q, tq):
     step = np.empty((1, 4))
     for k in range(nq):
         x = min(max(tq[k], t[0]), t[s - 1])
-        i = np.searchsorted(t, x) - 1
+        i = search_sorted(t, x, False) - 1
         if i < 0:
             i = 0
         if i > s - 2:

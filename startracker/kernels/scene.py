@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from startracker.kernels.catalog import cone_search_sorted_z
+from startracker.kernels.kvector import search_sorted
 
 __all__ = [
     "interpolate_attitudes",
@@ -26,7 +27,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _canonical(q):
     """q and -q are one rotation: the one whose first non-zero component is positive (in place)."""
     for i in range(4):
@@ -37,7 +38,7 @@ def _canonical(q):
             return
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def interpolate_attitudes(t_samples, q_samples, t_query):
     """Spherical-linear interpolation of an attitude history (scipy ``Slerp``'s rule).
 
@@ -66,7 +67,7 @@ def interpolate_attitudes(t_samples, q_samples, t_query):
     r = np.empty(4)
     for i in range(n_q):
         t = min(max(t_query[i], t_samples[0]), t_samples[n_s - 1])
-        k = np.searchsorted(t_samples, t) - 1  # side="left"
+        k = search_sorted(t_samples, t, False) - 1  # side="left"
         if k < 0:
             k = 0
         if k > n_s - 2:
@@ -110,7 +111,7 @@ def interpolate_attitudes(t_samples, q_samples, t_query):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def camera_frames(q_body_to_icrs, q_cam_to_body, r_cam_to_body, n_path_samples):
     """Camera-to-ICRS rotations at the path instants, the camera attitudes at the mid instants, the cone axis.
 
@@ -183,7 +184,7 @@ def camera_frames(q_body_to_icrs, q_cam_to_body, r_cam_to_body, n_path_samples):
     return r, qc, centre, drift
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def rotate_to_camera(r_cam_to_icrs, vectors, index):
     """Catalog directions in the camera frame at every instant: ``Rᵀ v``.
 
@@ -210,7 +211,7 @@ def rotate_to_camera(r_cam_to_icrs, vectors, index):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px):
     """Keep the stars whose path comes within ``margin_px`` of the detector; their paths and visibility.
 
@@ -267,7 +268,7 @@ def select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px
     return keep, xy_path, visible
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px, cy_px,
                   n_path_samples, n_cols, n_rows, margin_px, cos_rot=1.0, sin_rot=0.0):
     """Every candidate star at every instant through the pinhole with radial distortion, then

@@ -17,7 +17,7 @@ from startracker.kernels.rotations import relative_rotvec_rows
 __all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2", "smooth_instants", "accept_instants"]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def innovation_chi2_mean(q_pred, q_sol, cov_sol, tau_s, cov_theta, cov_omega, cov_alpha):
     """Mean over instants of the innovation χ² ``δᵀ S⁻¹ δ`` of solved against predicted attitudes.
 
@@ -60,7 +60,7 @@ def innovation_chi2_mean(q_pred, q_sol, cov_sol, tau_s, cov_theta, cov_omega, co
     return total / n
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def consistency_nis(q_true, q_est, cov):
     """Normalised error squared of each attitude against the truth, on its own covariance (3 dof).
 
@@ -89,7 +89,7 @@ def consistency_nis(q_true, q_est, cov):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def instant_deleted_chi2(q_ref, q_sol, cov_sol, tau_s, degree):
     """Leave-one-out χ² of each instant's attitude against a polynomial in time through the other instants.
 

@@ -18,7 +18,7 @@ from numba import njit
 from startracker.kernels.algebra import quat_multiply_into, quat_normalize_canonical, quat_to_rotation
 from startracker.kernels.attitude import solve_wahba_one
 from startracker.kernels.catalog import cone_search_sorted_z
-from startracker.kernels.kvector import kvector_fill
+from startracker.kernels.kvector import kvector_fill, median_value, sort_values
 from startracker.kernels.sensor import innovation_chi2_mean
 
 __all__ = [
@@ -39,7 +39,7 @@ __all__ = [
 
 
 # ------------------------------------------------------------------------------------------- prediction
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
     """Second-order attitude propagation to N instants and the camera's attitude there.
 
@@ -107,7 +107,7 @@ def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
     return q_body, r, mid, spread
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def project_frame(v_icrs, star, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot,
                   sin_rot, width, height, margin_px):
     """Project S catalog stars at N instants; keep the spots on the detector or within the margin around it.
@@ -184,7 +184,7 @@ def project_frame(v_icrs, star, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixe
 
 
 # --------------------------------------------------------------------------------------------- matching
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_build(pred):
     """Paper 000 §3.1: both k-vector tables over the predicted points, and the rows linking them.
 
@@ -239,7 +239,7 @@ def dkvlut_build(pred):
     return order, k, line, cross
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _axis_range(k, line, n, o, r):
     """Eqs. 4-5 on one axis: 0-based half-open rows ``[K(i_a) - 1, K(i_b))`` (the paper's ``[K(i_a), K(i_b)]``)."""
     inv, b1, tol, s0, s1 = line[0], line[1], line[2], line[3], line[4]
@@ -263,7 +263,7 @@ def _axis_range(k, line, n, o, r):
     return max(k[ia - 1] - 1, 0), k[ib - 1]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_ranges(order, k, line, obs, radius_px):
     """Candidate rows of every observed point on both axes (eqs. 4-5).
 
@@ -292,7 +292,7 @@ def dkvlut_ranges(order, k, line, obs, radius_px):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_candidates(order, k, line, cross, obs, radius_px):
     """The intersection set R_P of eq. 6 of every observed point, as (query, predicted) pairs.
 
@@ -331,7 +331,7 @@ def dkvlut_candidates(order, k, line, cross, obs, radius_px):
     return qi[:p].copy(), ei[:p].copy()
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_match(pred, order, k, line, cross, obs, radius_px):
     """Paper 000 §3.2 for every observed point: the nearest point of R_P within the radius.
 
@@ -380,7 +380,7 @@ def dkvlut_match(pred, order, k, line, cross, obs, radius_px):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def dkvlut_build_match(pred, obs, radius_px):
     """:func:`dkvlut_build` then :func:`dkvlut_match`, in one call (the tracker's per-frame use).
 
@@ -402,7 +402,7 @@ def dkvlut_build_match(pred, obs, radius_px):
     return dkvlut_match(pred, order, k, line, cross, obs, radius_px)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def match_brute(pred, obs, radius_px):
     """Paper 000 §2's "existing method": every observed point against every predicted point.
 
@@ -427,7 +427,7 @@ def match_brute(pred, obs, radius_px):
 
 
 # ------------------------------------------------------------------------ grouping into N attitudes
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def unproject_to_body(xy, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot, r_cam_to_body):
     """Pixel coordinates to unit body-frame directions (inverse of :func:`project_frame`'s camera model).
 
@@ -480,7 +480,7 @@ ROBUST_MIN_STARS = 8
 """Instants with at least this many stars also test outliers against their own robust residual scale."""
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_vectors, n_instants, sigma_rad,
                    min_stars, outlier_threshold_rad, obs_intensity, star_flux, flux_ratio_max):
     """Unique assignment, grouping by exposure instant and one Wahba solution per instant with outlier rejection.
@@ -566,7 +566,7 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 ratio[j] = obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300)
                 j += 1
         # the scale of one exposure's light: the lower quartile (at low rates joined spots can be most matches)
-        cap = flux_ratio_max * np.sort(ratio)[n_assigned // 4]
+        cap = flux_ratio_max * sort_values(ratio)[n_assigned // 4]
         for q in range(k_n):
             if assign[q] >= 0 and obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300) > cap:
                 assign[q] = -1
@@ -623,7 +623,7 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 # drag the fit toward them and hide from a threshold on the claimed σ: also test against the
                 # instant's own robust scale (median residual norm / 1.1774 is σ for Gaussian errors), never below
                 # 0.4 of the threshold (2σ of the claimed σ at the default 5σ).
-                med = np.median(used[:cnt]) / 1.1774
+                med = median_value(used[:cnt]) / 1.1774
                 threshold = min(threshold, max(5.0 * med, 0.4 * outlier_threshold_rad))
             if cnt > 2 and ang[worst] > threshold:
                 m[i, worst] = False
@@ -645,7 +645,7 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
     return q_out, cov, rms, n_used, ok, assign, n_out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy,
                 cos_rot, sin_rot, width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad, min_stars,
                 outlier_threshold_rad, t_exp, t_ref, cov_theta, cov_omega, cov_alpha, obs_intensity, star_flux,
@@ -734,7 +734,7 @@ def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k
     return n_pred, n_matched, q, cov, rms, n_used, ok, nis
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def track_frame_from_state(q0, omega, alpha, t_exp, t_ref, q_cam_to_body, half_diag_fov_rad, focal_length_px,
                            vectors_by_z, z_sorted, z_order, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm,
                            ppx, ppy, cos_rot, sin_rot, width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad,
@@ -800,7 +800,7 @@ def track_frame_from_state(q0, omega, alpha, t_exp, t_ref, q_cam_to_body, half_d
     return q_pred, n_pred, n_matched, q, cov, rms, n_used, ok, nis
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def prediction_sigma_px(r_cam_to_body, cov_theta, cov_omega, cov_alpha, dt_s, focal_length_px, rho_px):
     """1σ per-axis spot prediction error, px: ``sqrt(f² max(P_xx, P_yy) + ρ² P_zz)`` of ``Rᵀ P(dt) R``.
 

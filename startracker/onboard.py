@@ -470,17 +470,12 @@ def _sample_arrays(samples):
 
 
 def _wrong_samples(t_true, q_meas, cov, times_s, q_body_to_icrs) -> np.ndarray:
-    """Wrong flags (n,) of samples at true instants ``t_true``; those outside the truth history are not wrong."""
-    inside = (t_true >= times_s[0]) & (t_true <= times_s[-1])
-    wrong = np.zeros(len(t_true), dtype=bool)
-    if not inside.any():
-        return wrong
-    idx = np.flatnonzero(inside)
-    q_true = rk.quat_interpolate(times_s, q_body_to_icrs, t_true[idx])  # the caller's own float64 truth history
-    nis = sensor_kernels.consistency_nis(q_true.reshape(-1, 4), np.ascontiguousarray(q_meas[idx]),
-                                         np.ascontiguousarray(cov[idx]))
-    wrong[idx] = nis > VERDICT_CHI2_3
-    return wrong
+    """Wrong flags (n,) of samples at true instants ``t_true``; those outside the truth history are not wrong
+    (:func:`startracker.kernels.sensor.wrong_sample_flags`, on float64 C-contiguous copies where needed)."""
+    def rows(a):
+        return np.ascontiguousarray(a, dtype=np.float64)
+    return sensor_kernels.wrong_sample_flags(rows(t_true), rows(q_meas), rows(cov), rows(times_s),
+                                             rows(q_body_to_icrs).reshape(-1, 4), VERDICT_CHI2_3)
 
 
 def _empty_stats(n_heads: int = 1, matching_latency_ms=0.0, matching_latency_ms_per_head=None,
@@ -876,11 +871,11 @@ class StarTrackerUnit:
         faults = self.faults
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
-            if quats.dtype == np.float64 and quats.flags.c_contiguous:  # the env's own history: the row kernel
-                rotvec = rk.relative_rotvec_rows(quats[:-1], quats[1:])
+            if (quats.dtype == np.float64 and quats.flags.c_contiguous and times.dtype == np.float64
+                    and times.flags.c_contiguous):  # the env's own history: one compiled call
+                omega_avg = rk.interval_rates_rows(times, quats)
             else:
-                rotvec = rk.quat_relative_rotvec(quats[:-1], quats[1:])
-            omega_avg = rotvec / (times[1:] - times[:-1])[:, None]  # np.diff
+                omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]
             omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
             if faults:
                 omega_meas = faults.modify_gyro(omega_meas, times[1:], rng)

@@ -366,7 +366,8 @@ class AgileSlewEnv(gym.Env):
         self.avionics.observe(t_obs, q_obs, self.np_random)
 
         q_true = self.spacecraft.q_body_to_icrs
-        err = float(rk.quat_angle_between(q_true, self._q_target))  # quat_angle_between on own float64 state
+        # quat_angle_between's row loop on the env's own float64 (4,) state, without its reshaping wrapper
+        err = float(rk.angle_between_rows(q_true.reshape(1, 4), self._q_target.reshape(1, 4))[0])
         rate = math.sqrt(sum(w * w for w in self.spacecraft.omega_body.tolist()))
         dt = self.control_period_s
         settled_now = err <= self.settle_tolerance_rad and rate <= self.settle_rate_rad_s
@@ -397,7 +398,7 @@ class AgileSlewEnv(gym.Env):
         wheels = self.spacecraft.wheel_momentum_fraction
         n_w = len(wheels)
         obs = np.empty(10 + n_w, dtype=np.float32)
-        obs[0:3] = rk.quat_relative_rotvec(est.q_body_to_icrs, self._q_target)
+        obs[0:3] = rk.relative_rotvec_rows(est.q_body_to_icrs.reshape(1, 4), self._q_target.reshape(1, 4))[0]
         w_max = self.avionics.gyro_max_rate_rad_s
         # np.clip's arithmetic (max then min) without its dispatch
         obs[3:6] = np.minimum(np.maximum(est.omega_body, -w_max), w_max)
@@ -413,7 +414,7 @@ class AgileSlewEnv(gym.Env):
         p = est.attitude_cov_rad2
         if p is None:
             return None
-        d0, d1, d2 = rk.quat_relative_rotvec(est.q_body_to_icrs, q_true).tolist()
+        d0, d1, d2 = rk.relative_rotvec_rows(est.q_body_to_icrs.reshape(1, 4), q_true.reshape(1, 4))[0].tolist()
         (a, b, c), (_, e, f), (_, _, i) = p.tolist()  # symmetric: d' P⁻¹ d by the adjugate, on scalars
         c00, c01, c02 = e * i - f * f, c * f - b * i, b * f - c * e
         c11, c12, c22 = a * i - c * c, b * c - a * f, a * e - b * b
@@ -440,7 +441,8 @@ class AgileSlewEnv(gym.Env):
             "estimate_valid": bool(est.valid),
             "q_target": self._q_target.copy(),
             "omega_true_body": self.spacecraft.omega_body,
-            "attitude_error_arcsec": math.degrees(float(rk.quat_angle_between(q_true, est.q_body_to_icrs))) * 3600.0,
+            "attitude_error_arcsec": math.degrees(float(rk.angle_between_rows(
+                q_true.reshape(1, 4), est.q_body_to_icrs.reshape(1, 4))[0])) * 3600.0,
             "pointing_error_deg": math.degrees(pointing_error_rad),
             "update_rate_hz": stats["update_rate_hz"],
             "update_rate_hz_per_head": list(stats["update_rate_hz_per_head"]),

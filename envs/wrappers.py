@@ -35,13 +35,14 @@ class WallClockLatency(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.Wrapper.__init__(self, env)
         if not hasattr(env.unwrapped, "wall_clock_info"):
             raise TypeError("WallClockLatency wraps a startracker environment (one with wall_clock_info)")
+        self._base = env.unwrapped  # found once: the wrapper chain is fixed
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
-        info.update(self.env.unwrapped.wall_clock_info)
+        info.update(self._base.wall_clock_info)
         return obs, info
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
-        info.update(self.env.unwrapped.wall_clock_info)
+        info.update(self._base.wall_clock_info)
         return obs, reward, terminated, truncated, info

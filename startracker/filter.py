@@ -54,6 +54,9 @@ from startracker.validation import as_float_array, check_positive
 __all__ = ["AttitudeEKF", "DelayedFusion", "ARW_FLOOR_RAD_SQRT_S", "BIAS_SIGMA_FLOOR_RAD_S"]
 
 _H = np.hstack([np.eye(3), np.zeros((3, 3))])
+# DelayedFusion's innovations when it has none (shared, empty: nothing to write into)
+_NO_INNOVATIONS = np.zeros((0, 3))
+_NO_INNOVATION_COVS = np.zeros((0, 3, 3))
 _METHODS = ("auto", "sequential")
 
 
@@ -542,7 +545,7 @@ class DelayedFusion:
         self.t_s = float(self._tg[-1])
         self._now = None
         old = self.t_s - self.horizon_s
-        n_old = int(np.searchsorted(self._tg, old, side="right"))
+        n_old = int(self._tg.searchsorted(old, side="right"))  # the method: np.searchsorted without its dispatch
         if n_old == 0:
             return
         if self.ekf is not None and self._tg[n_old - 1] > self.ekf.t_s:
@@ -577,20 +580,22 @@ class DelayedFusion:
             Which samples the filter accepted (stale ones and those its innovation gate rejected are False).
         """
         m = len(t_meas_s)
-        accepted = np.zeros(m, dtype=bool)
-        self.last_nis = np.full(m, np.nan)
-        self.last_innovation_rad = np.zeros((0, 3))
-        self.last_innovation_cov_rad2 = np.zeros((0, 3, 3))
-        if m == 0:
-            return accepted
-        if self.ekf is None:
-            raise RuntimeError("start(ekf) before fuse()")
-        if t_meas_s[0] >= self.ekf.t_s:  # in time order: all fresh (the usual case)
-            fresh = slice(None)
-            n_fresh = m
-        else:
+        self.last_innovation_rad = _NO_INNOVATIONS
+        self.last_innovation_cov_rad2 = _NO_INNOVATION_COVS
+        if m == 0 or self.ekf is None or t_meas_s[0] < self.ekf.t_s:
+            # the unusual cases: NaN for the samples the filter does not test
+            self.last_nis = np.full(m, np.nan)
+            accepted = np.zeros(m, dtype=bool)
+            if m == 0:
+                return accepted
+            if self.ekf is None:
+                raise RuntimeError("start(ekf) before fuse()")
             fresh = t_meas_s >= self.ekf.t_s
             n_fresh = int(np.count_nonzero(fresh))
+        else:  # in time order: all fresh (the usual case); the filter's own arrays are the results
+            fresh = slice(None)
+            n_fresh = m
+            accepted = None
         self.n_stale += m - n_fresh
         if n_fresh == 0:
             return accepted
@@ -601,12 +606,16 @@ class DelayedFusion:
         wg, tg, rn, j = self._intervals_to(t_last)
         if wg is None:
             if t_last > self.ekf.t_s:
+                self.last_nis = np.full(m, np.nan)
                 raise ValueError(f"t_meas_s must not be later than the last gyro interval ({self.t_s}), got {t_last}")
             # all samples at the filter's own instant and nothing buffered: an update without propagation
             acc = self.ekf.process(self._held_rate(), np.array([t_last]), q_meas_body_to_icrs, t_meas_s,
                                    covariance_rad2, validate=False)
-            accepted[fresh] = acc
-            self.last_nis[fresh] = self.ekf.last_nis
+            if accepted is None:
+                accepted, self.last_nis = acc, self.ekf.last_nis
+            else:
+                accepted[fresh] = acc
+                self.last_nis[fresh] = self.ekf.last_nis
             self.last_innovation_rad = self.ekf.last_innovation_rad
             self.last_innovation_cov_rad2 = self.ekf.last_innovation_cov_rad2
             self._now = None
@@ -662,7 +671,7 @@ class DelayedFusion:
     def _intervals_to(self, t_last: float):
         """The buffered gyro intervals up to ``t_last``, the one covering it split at its instant: ``(wg, tg, rn, j)``
         with ``j`` the covering interval's index; ``(None, None, None, len)`` when no buffered interval reaches it."""
-        j = int(np.searchsorted(self._tg, t_last, side="left"))
+        j = int(self._tg.searchsorted(t_last, side="left"))
         if j == len(self._tg):
             return None, None, None, j
         tg = self._tg[: j + 1].copy()
@@ -709,4 +718,4 @@ class DelayedFusion:
         self._tg, self._wg, self._rn = self._tg[k:], self._wg[k:], self._rn[k:]
 
     def _drop_before(self, t: float) -> None:
-        self._keep_from(int(np.searchsorted(self._tg, t, side="right")))
+        self._keep_from(int(self._tg.searchsorted(t, side="right")))

@@ -470,32 +470,34 @@ def _sample_arrays(samples):
 
 
 def _wrong_samples(t_true, q_meas, cov, times_s, q_body_to_icrs) -> np.ndarray:
-    """Wrong flags (n,) of samples at true instants ``t_true``; those outside the truth history are not wrong."""
-    inside = (t_true >= times_s[0]) & (t_true <= times_s[-1])
-    wrong = np.zeros(len(t_true), dtype=bool)
-    if not inside.any():
-        return wrong
-    idx = np.flatnonzero(inside)
-    q_true = rk.quat_interpolate(times_s, q_body_to_icrs, t_true[idx])  # the caller's own float64 truth history
-    nis = sensor_kernels.consistency_nis(q_true.reshape(-1, 4), np.ascontiguousarray(q_meas[idx]),
-                                         np.ascontiguousarray(cov[idx]))
-    wrong[idx] = nis > VERDICT_CHI2_3
-    return wrong
+    """Wrong flags (n,) of samples at true instants ``t_true``; those outside the truth history are not wrong
+    (:func:`startracker.kernels.sensor.wrong_sample_flags`, on float64 C-contiguous copies where needed)."""
+    def rows(a):
+        return np.ascontiguousarray(a, dtype=np.float64)
+    return sensor_kernels.wrong_sample_flags(rows(t_true), rows(q_meas), rows(cov), rows(times_s),
+                                             rows(q_body_to_icrs).reshape(-1, 4), VERDICT_CHI2_3)
 
 
-def _empty_stats(n_heads: int = 1) -> dict:
+def _empty_stats(n_heads: int = 1, matching_latency_ms=0.0, matching_latency_ms_per_head=None,
+                 matching_wall_clock_ms=0.0, matching_wall_clock_ms_per_head=None, wall_clock_breakdown_ms=None,
+                 n_stars=0, exposures_per_frame=0, n_attitude_samples=0) -> dict:
+    """The figures of a span or frame (:attr:`StarTrackerUnit.last_stats`): zero, or a frame's (its arguments), in
+    one dict literal, built once per frame."""
     return dict(
         update_rate_hz=0.0,
         update_rate_hz_per_head=[0.0] * n_heads,
-        matching_latency_ms=0.0,
-        matching_latency_ms_per_head=[0.0] * n_heads,
-        n_stars=0,
-        exposures_per_frame=0,
-        n_attitude_samples=0,
+        matching_latency_ms=matching_latency_ms,
+        matching_latency_ms_per_head=([0.0] * n_heads if matching_latency_ms_per_head is None
+                                      else matching_latency_ms_per_head),
+        n_stars=n_stars,
+        exposures_per_frame=exposures_per_frame,
+        n_attitude_samples=n_attitude_samples,
         lost_lock_events=0,
-        matching_wall_clock_ms=0.0,
-        matching_wall_clock_ms_per_head=[0.0] * n_heads,
-        wall_clock_breakdown_ms=dict(predict_match=0.0, group_solve_test=0.0, identify=0.0),
+        matching_wall_clock_ms=matching_wall_clock_ms,
+        matching_wall_clock_ms_per_head=([0.0] * n_heads if matching_wall_clock_ms_per_head is None
+                                         else matching_wall_clock_ms_per_head),
+        wall_clock_breakdown_ms=(dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
+                                 if wall_clock_breakdown_ms is None else wall_clock_breakdown_ms),
         n_wrong_samples=0,
         n_confidently_wrong_samples=0,
         estimate_wrong=False,
@@ -600,7 +602,7 @@ class StarTrackerUnit:
         self.last_time_error_s = 0.0
         self.last_samples: list[AttitudeSample] = []
         self._omega_gyro = np.zeros(3)
-        self._frame_head_samples = np.zeros(len(self.heads))
+        self._frame_head_samples = [0] * len(self.heads)
         self._last_frame = None
         self._lost_events = 0
         self._n_wrong = 0
@@ -734,7 +736,7 @@ class StarTrackerUnit:
         opens by ``(|δ̂| + 3 σ_δ)²`` per axis for the correction's error; the estimate is flagged invalid until a
         sample exposed after the step is accepted. The fault's end, a step back, is found and undone the same way."""
         self._correction_before_jump = None
-        if np.any(self._gyro_correction):
+        if self._gyro_correction.any():
             omega_meas = omega_meas - self._gyro_correction
         if len(omega_meas) != self._allowance_span:  # spans as long as the env's control period
             self._allowance_span = len(omega_meas)
@@ -859,15 +861,24 @@ class StarTrackerUnit:
             raise RuntimeError("call reset(rng) before observe()")
         times, quats = times_s, q_body_to_icrs
         t0 = float(times[0])  # frame times as Python floats: the per-frame callees' fast path takes them unchecked
+        t_end = float(times[-1])
         cfg = self.config
-        n_frames = int(round((times[-1] - t0) / cfg.frame_period_s))
-        duration_s = n_frames * cfg.frame_period_s
+        frame_period_s = cfg.frame_period_s
+        gyro_period_s = self.gyro_period_s
+        n_heads = len(self.heads)
+        n_frames = int(round((t_end - t0) / frame_period_s))
+        duration_s = n_frames * frame_period_s
+        faults = self.faults
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
-            omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]  # np.diff
+            if (quats.dtype == np.float64 and quats.flags.c_contiguous and times.dtype == np.float64
+                    and times.flags.c_contiguous):  # the env's own history: one compiled call
+                omega_avg = rk.interval_rates_rows(times, quats)
+            else:
+                omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]
             omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
-            if self.faults:
-                omega_meas = self.faults.modify_gyro(omega_meas, times[1:], rng)
+            if faults:
+                omega_meas = faults.modify_gyro(omega_meas, times[1:], rng)
         else:
             omega_meas = omega_gyro
         rate_noise, last_saturated = self._rate_noise(omega_meas, omega_gyro is None)
@@ -876,54 +887,80 @@ class StarTrackerUnit:
         omega_meas = self._monitor_gyro_jump(omega_meas, times, rate_noise is not None)
 
         samples = []
-        stats = _empty_stats(len(self.heads))
-        lat, wall = [], []
-        per_head_n = np.zeros(len(self.heads))
-        per_head_lat = np.zeros(len(self.heads))
-        per_head_wall = np.zeros(len(self.heads))
-        breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
-        offsets = []
+        # per-frame figures summed in Python floats (the same additions as numpy's on float64)
+        lat_sum = wall_sum = 0.0
+        per_head_n = [0.0] * n_heads
+        per_head_lat = [0.0] * n_heads
+        per_head_wall = [0.0] * n_heads
+        bd_pm = bd_gst = bd_id = 0.0
+        n_stars = exposures_per_frame = 0
+        offsets = [] if faults else None  # timestamp errors only come from faults
         frame_ends = []
+        n_omega = len(omega_meas)
         for f in range(n_frames):
-            tf = t0 + f * cfg.frame_period_s
+            tf = t0 + f * frame_period_s
             # the gyro reading at the frame's start: the tracker propagates its prediction from frame_time
-            k = min(int(round((tf - t0) / self.gyro_period_s)), len(omega_meas) - 1)
+            k = min(int(round((tf - t0) / gyro_period_s)), n_omega - 1)
             # and the last reading of the frame: the gyro's mean acceleration over it
-            k_end = min(int(round((tf + cfg.frame_period_s - t0) / self.gyro_period_s)) - 1, len(omega_meas) - 1)
+            k_end = min(int(round((tf + frame_period_s - t0) / gyro_period_s)) - 1, n_omega - 1)
             alpha = None
             # a clipped reading's change is the clip, not the body's acceleration: then the rate is held instead
             if k_end > k and (rate_noise is None or not rate_noise[k:k_end + 1].any()):
-                alpha = (omega_meas[k_end] - omega_meas[k]) / ((k_end - k) * self.gyro_period_s)
+                alpha = (omega_meas[k_end] - omega_meas[k]) / ((k_end - k) * gyro_period_s)
             new = self.process_frame((times, quats), tf, rng, omega_gyro=omega_meas[k], alpha_gyro=alpha)
             samples.extend(new)
-            offsets.extend([self.last_time_error_s] * len(new))
-            frame_ends.append((len(samples), tf + cfg.frame_period_s + 1e-3 * self._frame_latency_ms))
-            lat.append(self._frame_latency_ms)
-            wall.append(self._frame_wall_ms)
-            per_head_n += self._frame_head_samples
-            per_head_lat += self.last_stats["matching_latency_ms_per_head"]
-            per_head_wall += self.last_stats["matching_wall_clock_ms_per_head"]
-            for key, v in self.last_stats["wall_clock_breakdown_ms"].items():
-                breakdown[key] += v
-            stats["n_stars"] = self.last_stats["n_stars"]
-            stats["exposures_per_frame"] = self.last_stats["exposures_per_frame"]
-        stats["matching_latency_ms"] = sum(lat) / len(lat) if lat else 0.0
-        stats["matching_wall_clock_ms"] = sum(wall) / len(wall) if wall else 0.0
+            if offsets is not None:
+                offsets.extend([self.last_time_error_s] * len(new))
+            frame_ends.append((len(samples), tf + frame_period_s + 1e-3 * self._frame_latency_ms))
+            lat_sum += self._frame_latency_ms
+            wall_sum += self._frame_wall_ms
+            last = self.last_stats
+            for h in range(n_heads):
+                per_head_n[h] += self._frame_head_samples[h]
+                per_head_lat[h] += last["matching_latency_ms_per_head"][h]
+                per_head_wall[h] += last["matching_wall_clock_ms_per_head"][h]
+            bd = last["wall_clock_breakdown_ms"]
+            bd_pm += bd["predict_match"]
+            bd_gst += bd["group_solve_test"]
+            bd_id += bd["identify"]
+            n_stars = last["n_stars"]
+            exposures_per_frame = last["exposures_per_frame"]
+        # distinct attitude instants: heads exposed at the same instant add samples, not updates (round half to
+        # even, as np.round)
+        n_instants = len({round(smp.t_s * 1e6) for smp in samples})
         if n_frames:
-            stats["matching_latency_ms_per_head"] = (per_head_lat / n_frames).tolist()
-            stats["matching_wall_clock_ms_per_head"] = (per_head_wall / n_frames).tolist()
-            stats["wall_clock_breakdown_ms"] = {k: v / n_frames for k, v in breakdown.items()}
-        stats["n_attitude_samples"] = len(samples)
-        # distinct attitude instants: heads exposed at the same instant add samples, not updates
-        n_instants = len(set(np.round(np.array([smp.t_s for smp in samples]) * 1e6).tolist())) if samples else 0
-        stats["update_rate_hz"] = n_instants / duration_s
-        stats["update_rate_hz_per_head"] = (per_head_n / duration_s).tolist()
-        stats["lost_lock_events"] = self._lost_events
-        stats["faults_active"] = self.faults.active_kinds(t0, times[-1]) if self.faults else []
+            per_lat = [v / n_frames for v in per_head_lat]
+            per_wall = [v / n_frames for v in per_head_wall]
+            breakdown = dict(predict_match=bd_pm / n_frames, group_solve_test=bd_gst / n_frames,
+                             identify=bd_id / n_frames)
+        else:
+            per_lat, per_wall = [0.0] * n_heads, [0.0] * n_heads
+            breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
+        # the keys of _empty_stats, in its order
+        stats = dict(
+            update_rate_hz=n_instants / duration_s,
+            update_rate_hz_per_head=[v / duration_s for v in per_head_n],
+            matching_latency_ms=lat_sum / n_frames if n_frames else 0.0,
+            matching_latency_ms_per_head=per_lat,
+            n_stars=n_stars,
+            exposures_per_frame=exposures_per_frame,
+            n_attitude_samples=len(samples),
+            lost_lock_events=self._lost_events,
+            matching_wall_clock_ms=wall_sum / n_frames if n_frames else 0.0,
+            matching_wall_clock_ms_per_head=per_wall,
+            wall_clock_breakdown_ms=breakdown,
+            n_wrong_samples=0,
+            n_confidently_wrong_samples=0,
+            estimate_wrong=False,
+            estimate_confidently_wrong=False,
+            filter_restarts=0,
+            faults_active=faults.active_kinds(t0, times[-1]) if faults else [],
+        )
         self.last_samples = samples
         if samples:  # judged against this span's truth now, counted when the filter has seen them
             t_arr, q_arr, c_arr = _sample_arrays(samples)
-            wrong = _wrong_samples(t_arr - np.array(offsets), q_arr, c_arr, times, quats)
+            t_true = t_arr - np.array(offsets) if offsets is not None else t_arr
+            wrong = _wrong_samples(t_true, q_arr, c_arr, times, quats)
             start = 0
             for end, t_done in frame_ends:
                 if end > start:
@@ -989,7 +1026,7 @@ class StarTrackerUnit:
             _, tm, qm, cm, wrong = due[0]
         else:
             tm, qm, cm, wrong = (np.concatenate([d[i] for d in due]) for i in range(1, 5))
-        if len(tm) > 1 and np.any(tm[1:] < tm[:-1]):  # several heads: merge into time order (stable)
+        if len(tm) > 1 and (tm[1:] < tm[:-1]).any():  # several heads: merge into time order (stable)
             order = np.argsort(tm, kind="stable")
             tm, qm, cm, wrong = tm[order], qm[order], cm[order], wrong[order]
         qm = qm / rk.vector_norm(qm)[:, None]  # np.linalg.norm(qm, axis=1)'s arithmetic, without its dispatch
@@ -1003,9 +1040,13 @@ class StarTrackerUnit:
         self._timing_last = (0.0, 0.0)
         # a fix the timing test cannot vouch for: the filter's first, or one over a loose prediction (a gap)
         loose = first == 1 and self._rate_matters()
-        fresh = tm[first:] >= self.fusion.ekf.t_s
-        if first == 0 and fresh.any():
-            stat, has, loose = self._timing_statistic(qm[fresh], tm[fresh], cm[fresh])
+        t_filter = self.fusion.ekf.t_s
+        if first == 0 and float(tm[-1]) >= t_filter:  # tm is in time order: some samples are fresh
+            if float(tm[0]) >= t_filter:  # all (the usual case): no masked copies
+                stat, has, loose = self._timing_statistic(qm, tm, cm)
+            else:
+                fresh = tm >= t_filter
+                stat, has, loose = self._timing_statistic(qm[fresh], tm[fresh], cm[fresh])
             self._timing_last = (stat, has)
         if self._timing_last[0] > MONITOR_TIMING_CHI2_1:
             # the frame's timestamps disagree with the gyro along the rate: fused, it would drag the estimate
@@ -1018,12 +1059,16 @@ class StarTrackerUnit:
             self.fusion.last_innovation_rad = np.zeros((0, 3))
         else:
             accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
-        if accepted.any():
+        any_accepted = bool(accepted.any())
+        if any_accepted:
             self._t_accepted = max(self._t_accepted, float(tm[accepted][-1]))
             # a loose fix waits for CONFIRM_DELIVERIES later frames the timing test could check
             self._unconfirmed = CONFIRM_DELIVERIES if loose else max(self._unconfirmed - 1, 0)
-        n_wrong = int(np.count_nonzero(wrong))
-        n_confident = int(np.count_nonzero(wrong & accepted))
+        if wrong.any():
+            n_wrong = int(np.count_nonzero(wrong))
+            n_confident = int(np.count_nonzero(wrong & accepted))
+        else:
+            n_wrong = n_confident = 0
         self._n_wrong += n_wrong
         self._n_confidently_wrong += n_confident
         stats["n_wrong_samples"] += n_wrong
@@ -1033,7 +1078,7 @@ class StarTrackerUnit:
         # filter does not believe). After three such deliveries in a row, restart from the tracker's last sample,
         # keep the bias estimate, and open its covariance so the filter can learn the new bias.
         if self.tracker_mode == "track":
-            self._rejected_frames = 0 if accepted.any() else self._rejected_frames + 1
+            self._rejected_frames = 0 if any_accepted else self._rejected_frames + 1
             if self._rejected_frames >= RESTART_AFTER_REJECTED_FRAMES:
                 old = self.fusion.ekf
                 ekf = self._new_filter(qm[-1], cm[-1], float(tm[-1]))
@@ -1068,8 +1113,8 @@ class StarTrackerUnit:
             self._monitor_slot)
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
-        n_timing = float(np.sum(self._timing_n))
-        timing_alarm = n_timing > 0 and float(np.sum(self._timing)) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
+        n_timing = float(self._timing_n.sum())  # ndarray.sum: np.sum's summation without its dispatch
+        timing_alarm = n_timing > 0 and float(self._timing.sum()) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
         # its samples' own NIS
         sample_alarm = MONITOR_SAMPLE_NIS and n_nis > 0 and max_nis > sample_nis_threshold(int(n_nis))
@@ -1096,7 +1141,7 @@ class StarTrackerUnit:
         # one (its timing sum below χ²(n)'s median), not merely none strong enough to alarm again.
         if self._timing_suspect and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES and (
                 n_timing == 0
-                or float(np.sum(self._timing)) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
+                or float(self._timing.sum()) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
             self._timing_suspect = False
 
     def _rate_matters(self) -> bool:
@@ -1247,10 +1292,11 @@ class StarTrackerUnit:
         t_mid = t_frame + 0.5 * cfg.frame_period_s
         self.last_time_error_s = 0.0
         faults = self.faults
-        self._frame_head_samples = np.zeros(len(self.heads))
+        n_heads = len(self.heads)
+        self._frame_head_samples = [0] * n_heads
         self._frame_latency_ms = self._frame_wall_ms = 0.0
         if faults and faults.frame_dropped(t_mid):
-            self.last_stats = dict(_empty_stats(len(self.heads)), exposures_per_frame=0)
+            self.last_stats = _empty_stats(n_heads)
             return []
         sun = None
         blinded = set()
@@ -1263,9 +1309,9 @@ class StarTrackerUnit:
             self.last_time_error_s = faults.timestamp_error_s(t_mid, rng)
         prev_mode = self.tracker_mode
         samples, n_matched, n_exp, frames = [], 0, 0, []
-        head_latency = [0.0] * len(self.heads)
-        head_wall = [0.0] * len(self.heads)
-        breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
+        head_latency = [0.0] * n_heads
+        head_wall = [0.0] * n_heads
+        bd_pm = bd_gst = bd_id = 0.0
         for k, (head, tracker) in enumerate(zip(self.heads, self.trackers)):
             plan = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
@@ -1276,7 +1322,9 @@ class StarTrackerUnit:
                 det = faults.modify_detections(det, t_mid, rng, head.camera.resolution)
             if k in blinded:
                 det = det.subset(np.zeros(0, dtype=np.int64))
-            t_exp = plan.exposure_mid_times(t_frame) + self.last_time_error_s
+            t_exp = plan.exposure_mid_times(t_frame)  # a fresh array
+            if self.last_time_error_s != 0.0:
+                t_exp = t_exp + self.last_time_error_s
             prior = self._inertial_prior(tracker, t_frame) if self.head_modes[k] != "track" else None
             t_proc = time.perf_counter()
             if faults or len(det) == 0 or det.xy.dtype != np.float64 or det.intensity.dtype != np.float64:
@@ -1288,18 +1336,20 @@ class StarTrackerUnit:
                     None if prior is None else rk.quat_normalize(prior), alpha_body=alpha_gyro, validate=False)
             # wall clock of the tracker's whole frame but lost-in-space identification: prediction and matching
             # (timed by the tracker), grouping by instant, the N Wahba solutions and the lock tests (the rest)
-            tracker_ms = (time.perf_counter() - t_proc) * 1e3 - float(res.identify_latency_ms)
+            identify_ms = float(res.identify_latency_ms)
+            tracker_ms = (time.perf_counter() - t_proc) * 1e3 - identify_ms
             predict_match_ms = float(res.matching_latency_ms)
-            head_wall[k] = max(tracker_ms, predict_match_ms)
-            breakdown["predict_match"] += predict_match_ms
-            breakdown["group_solve_test"] += head_wall[k] - predict_match_ms
-            breakdown["identify"] += float(res.identify_latency_ms)
-            self._frame_head_samples[k] = len(res.samples)
+            head_wall[k] = wall_k = max(tracker_ms, predict_match_ms)
+            bd_pm += predict_match_ms
+            bd_gst += wall_k - predict_match_ms
+            bd_id += identify_ms
+            n_det, res_samples = len(det), res.samples
+            self._frame_head_samples[k] = len(res_samples)
             # the modelled latency; one processor serves the heads in turn: their budgets add up
-            head_latency[k] = cfg.processor.frame_latency_ms(len(det), len(res.samples),
-                                                             self.head_modes[k] != "track" and len(det) > 0)
+            head_latency[k] = cfg.processor.frame_latency_ms(n_det, len(res_samples),
+                                                             self.head_modes[k] != "track" and n_det > 0)
             self.head_modes[k] = res.mode
-            samples.extend(res.samples)
+            samples.extend(res_samples)
             n_matched += int(res.n_matched)
             n_exp = max(n_exp, int(plan.n_exposures))
             frames.append((scene, det))
@@ -1313,18 +1363,11 @@ class StarTrackerUnit:
             self._t_lock_lost = None
         if cfg.keep_images:
             self._last_frame = frames[0]
-        self._frame_latency_ms, self._frame_wall_ms = sum(head_latency), sum(head_wall)
-        self.last_stats = dict(
-            _empty_stats(len(self.heads)),
-            matching_latency_ms=sum(head_latency),
-            matching_latency_ms_per_head=head_latency,
-            matching_wall_clock_ms=sum(head_wall),
-            matching_wall_clock_ms_per_head=head_wall,
-            wall_clock_breakdown_ms=breakdown,
-            n_stars=n_matched,
-            exposures_per_frame=n_exp,
-            n_attitude_samples=len(samples),
-        )
+        self._frame_latency_ms = latency_ms = sum(head_latency)
+        self._frame_wall_ms = wall_ms = sum(head_wall)
+        self.last_stats = _empty_stats(n_heads, latency_ms, head_latency, wall_ms, head_wall,
+                                       dict(predict_match=bd_pm, group_solve_test=bd_gst, identify=bd_id), n_matched,
+                                       n_exp, len(samples))
         return samples
 
     # ------------------------------------------------------------------ outputs

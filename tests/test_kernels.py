@@ -432,3 +432,57 @@ def test_monitor_kernels_equal_their_numpy_formulas(seed):
     assert loose == (p > 4.0 * r.min())
     assert fk.timing_statistic(u, z, s, r_cov, p / r.min() * 1.01)[1] is False
     assert fk.timing_statistic(u, z, s, r_cov, p / r.min() * 0.99)[1] is True
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_interval_rates_kernel_equals_scipy_over_each_interval(seed):
+    """The mean body rate over each interval of a history: scipy's ``(R_k⁻¹ R_k+1).as_rotvec() / Δt``, and bit for bit
+    the relative rotation vector divided by numpy's ``np.diff``."""
+    rng = np.random.default_rng(seed)
+    for n in (2, 3, 11, 31):
+        t = np.cumsum(rng.uniform(1e-3, 2e-2, n)) + rng.uniform(-1, 100)
+        w = rng.normal(size=3) * 10 ** rng.uniform(-6, 0.5)
+        q = rot.quat_integrate(rot.quat_random(rng), w, t - t[0]) * rng.choice([1.0, -1.0], size=(n, 1))
+        rates = rk.interval_rates_rows(t, q)
+        r = Rotation.from_quat(q[:, [1, 2, 3, 0]])
+        ref = (r[:-1].inv() * r[1:]).as_rotvec() / np.diff(t)[:, None]
+        np.testing.assert_allclose(rates, ref, rtol=1e-8, atol=1e-13)
+        np.testing.assert_allclose(rates, np.broadcast_to(w, rates.shape), rtol=1e-6, atol=1e-12)
+        assert np.array_equal(rates, rk.quat_relative_rotvec(q[:-1], q[1:]) / np.diff(t)[:, None])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_wrong_sample_flags_against_scipy_slerp_and_solve(seed):
+    """The sample verdict's kernel: for samples inside the truth history, wrong exactly when the error (scipy's
+    ``(R_meas⁻¹ R_true).as_rotvec()`` against scipy's Slerp of the truth) fails χ²(3) on the sample's own covariance
+    (``np.linalg.solve``); samples before or after the history are never wrong. Errors are drawn at k σ with k far
+    from the threshold's √44.8 ≈ 6.7 so that rounding cannot flip a verdict."""
+    from startracker.kernels.sensor import wrong_sample_flags
+
+    rng = np.random.default_rng(seed)
+    s = 11
+    t_hist = np.linspace(2.0, 2.1, s)
+    w = rng.normal(size=3) * 0.2
+    q_hist = rot.quat_integrate(rot.quat_random(rng), w, t_hist - t_hist[0])
+    n = 30
+    t_true = rng.uniform(1.95, 2.15, n)  # some outside the history
+    t_true[0], t_true[1] = t_hist[0], t_hist[-1]  # on its ends: judged
+    q_true = rot.from_scipy(Slerp(t_hist, rot.to_scipy(q_hist))(np.clip(t_true, t_hist[0], t_hist[-1])))
+    a = rng.normal(size=(n, 3, 3)) * 1e-5
+    cov = a @ a.transpose(0, 2, 1) + np.eye(3) * 1e-11
+    k = rng.choice([0.5, 2.0, 12.0, 30.0], size=n)
+    err = np.array([np.linalg.cholesky(c) @ (u / np.linalg.norm(u)) * kk
+                    for c, u, kk in zip(cov, rng.normal(size=(n, 3)), k)])
+    q_meas = rot.quat_multiply(q_true, rot.quat_from_rotvec(-err))  # q_true = q_meas ⊗ exp(err)
+    flags = wrong_sample_flags(t_true, q_meas, cov, t_hist, q_hist, VERDICT)
+    inside = (t_true >= t_hist[0]) & (t_true <= t_hist[-1])
+    d = (Rotation.from_quat(q_meas[:, [1, 2, 3, 0]]).inv() * Rotation.from_quat(q_true[:, [1, 2, 3, 0]])).as_rotvec()
+    nis = np.array([di @ np.linalg.solve(c, di) for di, c in zip(d, cov)])
+    np.testing.assert_allclose(nis, k**2, rtol=1e-6)
+    assert flags.dtype == np.bool_ and inside.sum() not in (0, n)
+    assert np.array_equal(flags, inside & (nis > VERDICT))
+    assert flags.any() and (inside & ~flags).any()
+    assert not wrong_sample_flags(t_true + 10.0, q_meas, cov, t_hist, q_hist, VERDICT).any()
+
+
+VERDICT = 44.8  # the χ²(3) level of startracker.onboard.VERDICT_CHI2_3, rounded

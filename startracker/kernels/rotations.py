@@ -28,6 +28,10 @@ __all__ = [
     "quat_multiply",
     "quat_relative_rotvec",
     "relative_rotvec_rows",
+    "interval_rates_rows",
+    "normalize_rows",
+    "interpolate_rows",
+    "angle_between_rows",
     "quat_to_matrix",
     "quat_rotate",
     "quat_from_rotvec",
@@ -278,6 +282,28 @@ def _interpolate_rows(t, q, tq):
         tmp[3] = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
         _canon_into(tmp, out, k)
     return out
+
+
+@njit(cache=True)
+def interval_rates_rows(t, q):
+    """Mean body rate (n - 1, 3), rad/s, over each interval of an attitude history ``t`` (n,) s, ``q`` (n, 4)
+    non-zero: the rotation vector of ``conj(q[k]) ⊗ q[k + 1]`` (:func:`relative_rotvec_rows`) over
+    ``t[k + 1] - t[k]``, divided as numpy divides (the gyro's true rates of :meth:`startracker.onboard.StarTrackerUnit.observe`)."""
+    rv = relative_rotvec_rows(q[:-1], q[1:])
+    for k in range(rv.shape[0]):
+        dt = t[k + 1] - t[k]
+        rv[k, 0] = rv[k, 0] / dt
+        rv[k, 1] = rv[k, 1] / dt
+        rv[k, 2] = rv[k, 2] / dt
+    return rv
+
+
+# The row loops other kernels and the per-step glue call directly, on (n, 4) float64 C-contiguous rows (no reshaping
+# wrapper): unit canonical rows; slerp of a unit history ``t`` (S,), ``q`` (S, 4) at ``tq`` (Q,); the angle (n,), rad,
+# between attitudes. Each is the loop its wrapper below calls, bit for bit.
+normalize_rows = _normalize_rows
+interpolate_rows = _interpolate_rows
+angle_between_rows = _angle_between_rows
 
 
 # ---------------------------------------------------------------------------------------- public kernels

@@ -12,9 +12,10 @@ import numpy as np
 from numba import njit
 
 from startracker.kernels.algebra import mahalanobis3
-from startracker.kernels.rotations import relative_rotvec_rows
+from startracker.kernels.rotations import interpolate_rows, normalize_rows, relative_rotvec_rows
 
-__all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2", "smooth_instants", "accept_instants"]
+__all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2", "smooth_instants", "accept_instants",
+           "wrong_sample_flags"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -87,6 +88,64 @@ def consistency_nis(q_true, q_est, cov):
     for k in range(n):
         out[k] = mahalanobis3(cov[k], d[k, 0], d[k, 1], d[k, 2])
     return out
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def wrong_sample_flags(t_true, q_meas, cov, times_s, q_hist, chi2_max):
+    """Which samples are wrong against a truth history: their :func:`consistency_nis` against the true attitude at
+    their true instant exceeds ``chi2_max``; samples outside the history are not judged (False).
+
+    One call for :func:`startracker.onboard.judge_samples`' selection, slerp and test: the truth history is
+    normalised (:func:`~startracker.kernels.rotations.normalize_rows`), interpolated at the instants inside it
+    (:func:`~startracker.kernels.rotations.interpolate_rows`) and the selected samples tested, the same loops in the
+    same order as the numpy formulation, so the flags are its own.
+
+    Parameters
+    ----------
+    t_true : ndarray, shape (n,)
+        True exposure instant of each sample, s.
+    q_meas : ndarray, shape (n, 4)
+        Reported attitudes (w, x, y, z), unit.
+    cov : ndarray, shape (n, 3, 3)
+        Reported covariances, body frame, rad².
+    times_s : ndarray, shape (S,)
+        Truth history instants, s, increasing.
+    q_hist : ndarray, shape (S, 4)
+        True attitudes at ``times_s`` (non-zero).
+    chi2_max : float
+        The test's threshold.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    n = t_true.shape[0]
+    wrong = np.zeros(n, dtype=np.bool_)
+    t_first, t_last = times_s[0], times_s[times_s.shape[0] - 1]
+    idx = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if t_true[i] >= t_first and t_true[i] <= t_last:
+            idx[m] = i
+            m += 1
+    if m == 0:
+        return wrong
+    tq = np.empty(m)
+    qm = np.empty((m, 4))
+    cm = np.empty((m, 3, 3))
+    for j in range(m):
+        i = idx[j]
+        tq[j] = t_true[i]
+        for c in range(4):
+            qm[j, c] = q_meas[i, c]
+        for r in range(3):
+            for c in range(3):
+                cm[j, r, c] = cov[i, r, c]
+    q_true = interpolate_rows(times_s, normalize_rows(q_hist), tq)
+    nis = consistency_nis(q_true, qm, cm)
+    for j in range(m):
+        wrong[idx[j]] = nis[j] > chi2_max
+    return wrong
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

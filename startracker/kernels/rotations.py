@@ -59,7 +59,19 @@ def _canon_into(q, out, k):
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
-def _normalize_rows(q):
+def normalize_rows(q):
+    """Unit canonical quaternions, row by row (first non-zero component positive).
+
+    Parameters
+    ----------
+    q : ndarray, shape (n, 4)
+        Quaternions (w, x, y, z), float64, C-contiguous, none zero.
+
+    Returns
+    -------
+    ndarray, shape (n, 4)
+        Each row divided by its norm, its sign chosen so that its first non-zero component is positive.
+    """
     n = q.shape[0]
     out = np.empty((n, 4))
     tmp = np.empty(4)
@@ -186,7 +198,19 @@ def relative_rotvec_rows(a, b):
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
-def _angle_between_rows(a, b):
+def angle_between_rows(a, b):
+    """Rotation angle between two attitudes, row by row.
+
+    Parameters
+    ----------
+    a, b : ndarray, shape (n, 4)
+        Quaternions (w, x, y, z), float64, C-contiguous (normalised here).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Angle of ``a⁻¹ b``, rad, in [0, π].
+    """
     n = a.shape[0]
     out = np.empty(n)
     for k in range(n):
@@ -209,7 +233,7 @@ def _integrate_rows(q, rv):
     n = q.shape[0]
     dq = _from_rotvec_rows(rv)
     out = _multiply_rows(q, dq)
-    return _normalize_rows(out)
+    return normalize_rows(out)
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -249,9 +273,25 @@ def _from_matrix_rows(m):
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
-def _interpolate_rows(t, q, tq):
-    """Slerp of the history (t (S,), q (S, 4) unit) at tq (Q,) clipped to [t[0], t[-1]]: on each interval the
-    rotation a⁻¹b is scaled along its own axis, the shortest way round."""
+def interpolate_rows(t, q, tq):
+    """Slerp of an attitude history at other instants, clipped to its span.
+
+    On each interval the rotation ``a⁻¹ b`` is scaled along its own axis, the shortest way round.
+
+    Parameters
+    ----------
+    t : ndarray, shape (S,)
+        Increasing instants of the history, s.
+    q : ndarray, shape (S, 4)
+        Unit quaternions (w, x, y, z) at ``t``.
+    tq : ndarray, shape (Q,)
+        Query instants, s (clipped to ``[t[0], t[-1]]``).
+
+    Returns
+    -------
+    ndarray, shape (Q, 4)
+        Interpolated unit quaternions.
+    """
     nq = tq.shape[0]
     s = t.shape[0]
     out = np.empty((nq, 4))
@@ -298,13 +338,6 @@ def interval_rates_rows(t, q):
     return rv
 
 
-# The row loops other kernels and the per-step glue call directly, on (n, 4) float64 C-contiguous rows (no reshaping
-# wrapper): unit canonical rows; slerp of a unit history ``t`` (S,), ``q`` (S, 4) at ``tq`` (Q,); the angle (n,), rad,
-# between attitudes. Each is the loop its wrapper below calls, bit for bit.
-normalize_rows = _normalize_rows
-interpolate_rows = _interpolate_rows
-angle_between_rows = _angle_between_rows
-
 
 # ---------------------------------------------------------------------------------------- public kernels
 def _rows(a: np.ndarray, width: int) -> np.ndarray:
@@ -334,7 +367,7 @@ def canonical_sign(q: np.ndarray) -> np.ndarray:
 
 def quat_normalize(q: np.ndarray) -> np.ndarray:
     """Unit, canonical quaternions of non-zero (..., 4) quaternions."""
-    return _normalize_rows(_rows(q, 4)).reshape(np.shape(q))
+    return normalize_rows(_rows(q, 4)).reshape(np.shape(q))
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
@@ -403,7 +436,7 @@ def quat_integrate(q, omega_body, dt, alpha_body=None) -> np.ndarray:
 def quat_angle_between(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Angle (rad, in [0, π]) of the rotation taking attitude ``q1`` to ``q2``; sign-invariant, shape (...)."""
     a, b, shape = _pair_rows(q1, q2)
-    return _angle_between_rows(a, b).reshape(shape[:-1])
+    return angle_between_rows(a, b).reshape(shape[:-1])
 
 
 def quat_from_matrix(m: np.ndarray) -> np.ndarray:
@@ -416,6 +449,6 @@ def quat_interpolate(t: np.ndarray, q: np.ndarray, tq) -> np.ndarray:
     """Spherical-linear interpolation of the history ``t`` (S,) s strictly increasing, ``q`` (S, 4) non-zero, at
     ``tq`` (scalar or (Q,), clipped to ``[t[0], t[-1]]``); (4,) or (Q, 4), unit and canonical."""
     tq_arr = np.asarray(tq, dtype=np.float64)
-    q_unit = _normalize_rows(_rows(q, 4))
-    out = _interpolate_rows(np.ascontiguousarray(t, dtype=np.float64), q_unit, tq_arr.reshape(-1))
+    q_unit = normalize_rows(_rows(q, 4))
+    out = interpolate_rows(np.ascontiguousarray(t, dtype=np.float64), q_unit, tq_arr.reshape(-1))
     return out[0] if tq_arr.ndim == 0 else out

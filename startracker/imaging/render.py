@@ -11,8 +11,11 @@ Rendering paths
   one cell when the background is flat), a Poisson number of crossing pixels
   with mean ``n_px · P(DN > threshold)``, uniform positions, values from the Gaussian tail above the
   threshold, each with its 3×3 neighbourhood drawn as plain background. Pixels are deduplicated with a
-  persistent index buffer (no sort), so overlapping windows share one noisy value. Both paths use
-  :func:`_pixels_to_dn`, so their statistics agree (tests/test_imaging.py).
+  persistent index buffer (no sort), so overlapping windows share one noisy value. Both paths draw the
+  same random numbers (:func:`_draw_pixel_noise`) and run the same per-pixel arithmetic (the full frame in
+  :func:`startracker.kernels.imaging.pixels_to_dn`; the sparse set in
+  :func:`startracker.kernels.imaging.sparse_pixels_to_dn`, which also evaluates the background there in the same
+  pass), so their statistics agree (tests/test_imaging.py).
 """
 
 from __future__ import annotations

@@ -361,10 +361,20 @@ def test_window_kernel_integrates_the_gaussian_over_pixels():
     # per spot: every pixel at most once, the spot's own light only
     for p in range(12):
         assert len(np.unique(lin[spot == p])) == np.count_nonzero(spot == p)
-    # min_value drops exactly the pixels below it
-    lin2, val2, _ = render_spot_windows(sub_xy, sub_w, sigma, hw, n_cols, n_rows, 5.0)
-    assert np.all(val2 >= 5.0)
-    assert len(lin2) == np.count_nonzero(val >= 5.0)
+    # min_value drops exactly the pixels below it, and the trimmed windows (rows and columns that cannot reach it
+    # are not evaluated) keep the others bit for bit, in the same order; sharp spots (σ < 0.4 px, where one pixel
+    # holds most of the light) and floors near a spot's peak included
+    sharp = sigma.copy()
+    sharp[::3] = 0.3
+    for sig in (sigma, sharp):
+        lin, val, spot = render_spot_windows(sub_xy, sub_w, sig, hw, n_cols, n_rows, 0.0)
+        for floor in (0.5, 5.0, 50.0, 150.0, 400.0):
+            lin2, val2, spot2 = render_spot_windows(sub_xy, sub_w, sig, hw, n_cols, n_rows, floor)
+            keep = val >= floor
+            assert np.all(val2 >= floor)
+            np.testing.assert_array_equal(lin2, lin[keep])
+            np.testing.assert_array_equal(val2, val[keep])
+            np.testing.assert_array_equal(spot2, spot[keep])
 
 
 def test_sparse_windows_carry_the_expected_charge_of_the_full_frame():
@@ -461,3 +471,60 @@ def test_pixel_path_is_deterministic_across_processes_on_a_fresh_numba_cache(tmp
         assert res.returncode == 0, res.stderr
         outs.append(res.stdout.strip())
     assert len(outs[0]) > 1000 and outs[0] == outs[1]
+
+
+def test_sparse_pixel_kernel_gives_the_background_and_the_noisy_dn_of_each_pixel():
+    """sparse_pixels_to_dn in one pass: the background plane's level and threshold (mean + k σ with shot, dark,
+    read, PRNU and 1/12 DN² quantisation), the DN of the pixel-noise model (intensified and CMOS), hot pixels'
+    extra charge, the full well, the ADC range, and the drawn DN of the background crossings written over theirs;
+    each against the formulas evaluated here with numpy."""
+    from startracker.kernels.imaging import sparse_pixels_to_dn
+
+    rng = np.random.default_rng(11)
+    n_cols, n_rows = 50, 40
+    u = 300
+    lin = rng.choice(n_cols * n_rows, u, replace=False).astype(np.int64)
+    rows, cols = np.divmod(lin, n_cols)
+    prnu = (0.02 * rng.standard_normal(n_cols * n_rows)).astype(np.float32)
+    spot = rng.uniform(0, 3000, u) * (rng.random(u) < 0.7)
+    spot[:3] = 1e7  # beyond the full well
+    z = rng.standard_normal(u)
+    charge = rng.uniform(0, 2000, u)
+    direct = np.where(rng.random(u) < 0.1, rng.uniform(0, 500, u), 0.0)
+    hot_u = np.array([5, 17, 40], dtype=np.int64)
+    hot_e = np.array([200.0, 50.0, 900.0])
+    hot_z = rng.standard_normal(3)
+    false_u = np.array([7, -1, 60], dtype=np.int64)
+    false_dn = np.array([151.0, 999.0, 163.0])
+    opt0, opt_dx, opt_dy, cx, cy = 40.0, 0.9, -2.5, 25.0, 20.0  # clipped at 0 in part of the frame
+    gain, enf2_c, dark_e, read_var, prnu_sigma = 3.0, 4.5, 2.0, 9.0, 0.02
+    full_well, g_dn, bias, adc_max, k = 60000.0, 16.0, 100.0, 4095.0, 5.0
+    o = np.maximum(opt0 + opt_dx * (cols - cx) + opt_dy * (rows - cy), 0.0)
+    assert np.any(o == 0.0) and np.any(o > 0.0)
+    q_bg = gain * o
+    mean_ref = (q_bg + dark_e) / g_dn + bias
+    thr_ref = mean_ref + k * np.sqrt((enf2_c * q_bg + dark_e + read_var + (prnu_sigma * q_bg) ** 2) / g_dn**2 + 1 / 12)
+    f = 1.0 + prnu[lin].astype(np.float64)
+    for intensified in (True, False):
+        dn, mean, thr = sparse_pixels_to_dn(intensified, spot, prnu, lin, z, charge, direct, hot_u, hot_e, hot_z,
+                                            false_u, false_dn, n_cols, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c,
+                                            dark_e, read_var, prnu_sigma, full_well, g_dn, bias, adc_max, k)
+        assert dn.dtype == np.float32
+        np.testing.assert_allclose(mean, mean_ref, rtol=1e-12)
+        np.testing.assert_allclose(thr, thr_ref, rtol=1e-12)
+        if intensified:
+            q = spot + q_bg
+            e = q * f + dark_e + np.sqrt(enf2_c * q + dark_e + read_var) * z
+        else:
+            e = np.sqrt(enf2_c * q_bg + dark_e + read_var) * z + q_bg * f + dark_e + f * charge
+        e = e + direct
+        e[hot_u] += hot_e + np.sqrt(hot_e) * hot_z
+        x = np.minimum(e, full_well) / g_dn + bias
+        ref = np.clip(np.rint(x), 0.0, adc_max)
+        ref[false_u[false_u >= 0]] = false_dn[false_u >= 0]
+        off = dn != ref
+        # equal except where rounding order could tip a value sitting on a half DN
+        assert np.all(np.abs(np.abs(x[off] - np.floor(x[off])) - 0.5) < 1e-9)
+        if intensified:
+            assert np.all(dn[:3] == full_well / g_dn + bias)  # clipped at the full well
+        assert dn[7] == 151.0 and dn[60] == 163.0

@@ -11,8 +11,11 @@ Rendering paths
   one cell when the background is flat), a Poisson number of crossing pixels
   with mean ``n_px · P(DN > threshold)``, uniform positions, values from the Gaussian tail above the
   threshold, each with its 3×3 neighbourhood drawn as plain background. Pixels are deduplicated with a
-  persistent index buffer (no sort), so overlapping windows share one noisy value. Both paths use
-  :func:`_pixels_to_dn`, so their statistics agree (tests/test_imaging.py).
+  persistent index buffer (no sort), so overlapping windows share one noisy value. Both paths draw the
+  same random numbers (:func:`_draw_pixel_noise`) and run the same per-pixel arithmetic (the full frame in
+  :func:`startracker.kernels.imaging.pixels_to_dn`; the sparse set in
+  :func:`startracker.kernels.imaging.sparse_pixels_to_dn`, which also evaluates the background there in the same
+  pass), so their statistics agree (tests/test_imaging.py).
 """
 
 from __future__ import annotations
@@ -26,12 +29,12 @@ import numpy as np
 from startracker.imaging.background import BackgroundField, FalseObjects, background_field, draw_false_objects
 from startracker.imaging.detector import SensorModel, fixed_pattern
 from startracker.kernels.imaging import (
-    background_at_pixels,
     false_pixel_cells,
     lookup_pixels,
     pixels_to_dn,
     place_false_pixels,
     sparse_pixel_set,
+    sparse_pixels_to_dn,
 )
 from startracker.validation import check_real, check_rng
 from startracker.imaging.spots import (
@@ -63,12 +66,35 @@ _FALSE_GRID = 64  # cells per axis for drawing the background's threshold crossi
 _NO_PRNU = np.zeros(0, dtype=np.float32)
 
 
+def _draw_pixel_noise(spot, model: SensorModel, rng, n_hot: int):
+    """The random numbers of :func:`_pixels_to_dn`, in its order: one normal per pixel, (CMOS) the star
+    photoelectrons and their gain, one normal per hot pixel. Returns ``z`` (U,), ``charge`` (U,) e⁻ (the spot
+    itself for an intensified detector, unused), ``hot_z`` (H,)."""
+    u = spot.shape[0]
+    z = rng.standard_normal(u)
+    g = model.intensifier_gain
+    if model.intensified:
+        charge = spot  # unused by the kernel
+    else:
+        charge = np.zeros(u)
+        nz = np.flatnonzero(spot > 0)
+        if len(nz):
+            n_pe = rng.poisson(spot[nz])
+            k = model.gamma_shape_per_pe
+            if math.isinf(k):
+                charge[nz] = g * n_pe.astype(np.float64)
+            else:
+                charge[nz] = rng.gamma(np.maximum(k * n_pe, 1e-300), g / k) * (n_pe > 0)
+    hot_z = rng.standard_normal(n_hot)
+    return z, charge, hot_z
+
+
 def _pixels_to_dn(spot, bg: BackgroundField, opt_bg, prnu, lin, model: SensorModel, rng, *, hot_u=None, hot_e=None,
                   direct=None):
-    """Random DN of pixels given their expected signals (shared by the full-frame and sparse paths).
+    """Random DN of pixels given their expected signals (the full-frame path; the sparse path runs the same
+    arithmetic in :func:`startracker.kernels.imaging.sparse_pixels_to_dn`).
 
-    Draws, in this order: one normal per pixel, (CMOS) the star photoelectrons and their gain, one normal per hot
-    pixel; then :func:`startracker.kernels.imaging.pixels_to_dn`.
+    Draws the numbers of :func:`_draw_pixel_noise`, then :func:`startracker.kernels.imaging.pixels_to_dn`.
 
     Parameters
     ----------
@@ -85,24 +111,11 @@ def _pixels_to_dn(spot, bg: BackgroundField, opt_bg, prnu, lin, model: SensorMod
         Charge deposited directly (cosmic rays), e⁻.
     """
     u = spot.shape[0]
-    z = rng.standard_normal(u)
-    g = model.intensifier_gain
-    if model.intensified:
-        charge = spot  # unused by the kernel
-    else:
-        charge = np.zeros(u)
-        nz = np.flatnonzero(spot > 0)
-        if len(nz):
-            n_pe = rng.poisson(spot[nz])
-            k = model.gamma_shape_per_pe
-            if math.isinf(k):
-                charge[nz] = g * n_pe.astype(np.float64)
-            else:
-                charge[nz] = rng.gamma(np.maximum(k * n_pe, 1e-300), g / k) * (n_pe > 0)
     if hot_u is None:
         hot_u = np.zeros(0, dtype=np.int64)
         hot_e = np.zeros(0)
-    hot_z = rng.standard_normal(len(hot_u))
+    z, charge, hot_z = _draw_pixel_noise(spot, model, rng, len(hot_u))
+    g = model.intensifier_gain
     return pixels_to_dn(bool(model.intensified), spot, opt_bg, _NO_PRNU if prnu is None else prnu, lin, z, charge,
                         np.zeros(u) if direct is None else direct, hot_u, np.asarray(hot_e, dtype=np.float64), hot_z,
                         float(g), float(bg.enf2_c), float(bg.dark_e), float(bg.read_var_e2), float(model.full_well_e),
@@ -456,15 +469,14 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         o_lin, o_val, o_src, 1.0 if model.intensified else g, d_lin, d_val, d_src, hot_idx,
         np.asarray(hot_e_all, dtype=np.float64), q0, f_lin, q1, n_cols, n_rows, index.buf)
     index.adopt(uniq)
-    opt_u, mean_dn_u, thr_dn_u = background_at_pixels(
-        uniq, n_cols, float(bg.opt0), float(bg.opt_dx), float(bg.opt_dy), float(bg.cx), float(bg.cy), float(bg.gain),
-        float(bg.enf2_c), float(bg.dark_e), float(bg.read_var_e2), float(bg.prnu_sigma), float(model.gain_e_per_dn),
-        float(model.bias_dn), float(k_sigma))
-    dn = _pixels_to_dn(spot_u, bg, opt_u, prnu, uniq, model, rng, hot_u=hot_u, hot_e=hot_e_all,
-                       direct=dir_u if cosmic is not None else None)
-    if n_false:
-        keep_f = false_u >= 0
-        dn[false_u[keep_f]] = f_dn[keep_f]
+    # background, DN and the crossings' values in one compiled pass over the pixels
+    z, charge, hot_z = _draw_pixel_noise(spot_u, model, rng, len(hot_u))
+    dn, mean_dn_u, thr_dn_u = sparse_pixels_to_dn(
+        bool(model.intensified), spot_u, _NO_PRNU if prnu is None else prnu, uniq, z, charge, dir_u, hot_u,
+        np.asarray(hot_e_all, dtype=np.float64), hot_z, false_u, f_dn, n_cols, float(bg.opt0), float(bg.opt_dx),
+        float(bg.opt_dy), float(bg.cx), float(bg.cy), float(bg.gain), float(bg.enf2_c), float(bg.dark_e),
+        float(bg.read_var_e2), float(bg.prnu_sigma), float(model.full_well_e), float(model.gain_e_per_dn),
+        float(model.bias_dn), float(model.adc_max_dn), float(k_sigma))
 
     # source table: stars, debris, cosmic rays (from frame_spots), hot pixels, background crossings
     hr, hc = np.divmod(hot_idx, n_cols)
@@ -480,7 +492,7 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
     return SparseFrame(
         shape=(n_rows, n_cols),
         lin=uniq,
-        dn=dn.astype(np.float32),
+        dn=dn,
         background_dn=mean_dn_u,
         threshold_dn=thr_dn_u,
         saturation_dn=model.saturation_dn,

@@ -22,11 +22,11 @@ __all__ = [
     "shift_intensified_spots",
     "sparse_pixel_set",
     "pixels_to_dn",
+    "sparse_pixels_to_dn",
     "false_pixel_cells",
     "place_false_pixels",
     "lookup_pixels",
     "spots_from_paths",
-    "background_at_pixels",
 ]
 
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
@@ -149,6 +149,10 @@ def render_spot_windows(sub_xy, sub_w, sigma_px, half_width_px, n_cols, n_rows, 
     r_lo = np.empty(n_p, dtype=np.int64)
     wc = np.empty(n_p, dtype=np.int64)
     wr = np.empty(n_p, dtype=np.int64)
+    ca_ = np.empty(n_p, dtype=np.int64)
+    cb_ = np.empty(n_p, dtype=np.int64)
+    ra_ = np.empty(n_p, dtype=np.int64)
+    rb_ = np.empty(n_p, dtype=np.int64)
     cap = 0
     w_max = 0
     for p in range(n_p):
@@ -156,39 +160,76 @@ def render_spot_windows(sub_xy, sub_w, sigma_px, half_width_px, n_cols, n_rows, 
         x1 = x0
         y0 = sub_xy[p, 0, 1]
         y1 = y0
-        for k in range(1, n_k):
+        wsum = 0.0
+        for k in range(n_k):
             x0 = min(x0, sub_xy[p, k, 0])
             x1 = max(x1, sub_xy[p, k, 0])
             y0 = min(y0, sub_xy[p, k, 1])
             y1 = max(y1, sub_xy[p, k, 1])
+            wsum += sub_w[p, k]
         h = half_width_px[p]
         c_lo[p] = np.int64(np.rint(x0)) - h
         r_lo[p] = np.int64(np.rint(y0)) - h
         wc[p] = np.int64(np.rint(x1)) + h - c_lo[p] + 1
         wr[p] = np.int64(np.rint(y1)) + h - r_lo[p] + 1
-        # only the part of the window on the detector is evaluated
-        cols = min(c_lo[p] + wc[p], n_cols) - max(c_lo[p], 0)
-        rows = min(r_lo[p] + wr[p], n_rows) - max(r_lo[p], 0)
-        if cols > 0 and rows > 0:
-            cap += cols * rows
-        w_max = max(w_max, wc[p], wr[p])
+        ca = max(c_lo[p], 0)
+        cb = min(c_lo[p] + wc[p], n_cols)
+        ra = max(r_lo[p], 0)
+        rb = min(r_lo[p] + wr[p], n_rows)
+        if min_value > 0.0 and wsum > 0.0:
+            # Trim the window to the rows and columns that can reach min_value. A pixel whose nearest edge lies
+            # d beyond every sub-spot along one axis holds at most wsum c Q(d/σ), with c = min(1, 1/(σ√(2π))) the
+            # largest fraction of a unit Gaussian in one pixel along the other axis, and Q(t) <= exp(−t²/2)/2
+            # (Chernoff), tightened where it holds by Q(t) <= φ(t)/t (Mills). The kept pixels and their values
+            # are unchanged (the edges stay integers + 0.5), only fewer of them are evaluated.
+            s = sigma_px[p]
+            c = min(1.0, 1.0 / (s * math.sqrt(2.0 * math.pi)))
+            ratio = wsum * c / (2.0 * min_value)
+            if ratio > 1.0:
+                t = math.sqrt(2.0 * math.log(ratio))
+                a = wsum * c / (min_value * math.sqrt(2.0 * math.pi))
+                t_prev = t
+                for _ in range(3):
+                    q = a / t_prev
+                    if q <= 1.0:
+                        break
+                    t_new = math.sqrt(2.0 * math.log(q))
+                    t_try = max(t_new, 0.5 * (t_new + t_prev))
+                    if t_try > 0.0 and a * math.exp(-0.5 * t_try * t_try) / t_try < 0.999:
+                        t = min(t, t_try)
+                    t_prev = t_new
+                d = s * t * (1.0 + 1e-9) + 1e-9
+                # keep pixel centres strictly within (x0 − d − 0.5, x1 + d + 0.5) (and likewise for rows)
+                ca = max(ca, np.int64(math.floor(x0 - d - 0.5)) + 1)
+                cb = min(cb, np.int64(math.ceil(x1 + d + 0.5)))
+                ra = max(ra, np.int64(math.floor(y0 - d - 0.5)) + 1)
+                rb = min(rb, np.int64(math.ceil(y1 + d + 0.5)))
+        ca_[p] = ca
+        cb_[p] = cb
+        ra_[p] = ra
+        rb_[p] = rb
+        if cb > ca and rb > ra:
+            cap += (cb - ca) * (rb - ra)
+            w_max = max(w_max, cb - ca, rb - ra)
     lin = np.empty(cap, dtype=np.int64)
     val = np.empty(cap)
     spot = np.empty(cap, dtype=np.int64)
     gx = np.empty((n_k, w_max))
     gy = np.empty((n_k, w_max))
     gx_max = np.empty(n_k)
+    acc = np.empty(w_max)
     n = 0
     for p in range(n_p):
-        ca = max(c_lo[p], 0)
-        cb = min(c_lo[p] + wc[p], n_cols)
-        ra = max(r_lo[p], 0)
-        rb = min(r_lo[p] + wr[p], n_rows)
+        ca = ca_[p]
+        cb = cb_[p]
+        ra = ra_[p]
+        rb = rb_[p]
         if cb <= ca or rb <= ra:
             continue
+        nc = cb - ca
         inv_s = 1.0 / sigma_px[p]
         for k in range(n_k):
-            _axis_profile(ca - 0.5, cb - ca, sub_xy[p, k, 0], inv_s, gx[k])
+            _axis_profile(ca - 0.5, nc, sub_xy[p, k, 0], inv_s, gx[k])
             _axis_profile(ra - 0.5, rb - ra, sub_xy[p, k, 1], inv_s, gy[k])
             wk = sub_w[p, k]
             for i in range(rb - ra):
@@ -196,21 +237,26 @@ def render_spot_windows(sub_xy, sub_w, sigma_px, half_width_px, n_cols, n_rows, 
         if min_value > 0.0:
             for k in range(n_k):
                 m = 0.0
-                for j in range(cb - ca):
+                for j in range(nc):
                     m = max(m, gx[k, j])
                 gx_max[k] = m
         for i in range(rb - ra):
             if min_value > 0.0:
-                bound = 0.0  # no pixel of this row can reach min_value: skip it
+                bound = 0.0
                 for k in range(n_k):
                     bound += gy[k, i] * gx_max[k]
                 if bound < min_value:
                     continue
+            # k outermost so the column loop vectorises; each pixel still sums its sub-spots in order k = 0, 1, …
+            for j in range(nc):
+                acc[j] = 0.0
+            for k in range(n_k):
+                g = gy[k, i]
+                for j in range(nc):
+                    acc[j] += g * gx[k, j]
             base = (ra + i) * n_cols + ca
-            for j in range(cb - ca):
-                v = 0.0
-                for k in range(n_k):
-                    v += gy[k, i] * gx[k, j]
+            for j in range(nc):
+                v = acc[j]
                 if min_value > 0.0 and v < min_value:
                     continue
                 lin[n] = base + j
@@ -446,6 +492,74 @@ def pixels_to_dn(intensified, spot_e, opt_bg_pe, prnu, lin, z, charge_e, direct_
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
+def sparse_pixels_to_dn(intensified, spot_e, prnu, lin, z, charge_e, direct_e, hot_u, hot_e, hot_z, false_u, false_dn,
+                        n_cols, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2, prnu_sigma,
+                        full_well_e, gain_e_per_dn, bias_dn, adc_max_dn, k_sigma):
+    """The pixels of a sparse frame in one pass: their expected background (the plane of
+    :class:`startracker.imaging.BackgroundField`: optical photoelectrons, level, threshold), their random DN
+    (:func:`pixels_to_dn`, same arithmetic) and the background crossings' drawn DN written over theirs.
+
+    Parameters
+    ----------
+    intensified, spot_e, prnu, lin, z, charge_e, direct_e, hot_u, hot_e, hot_z
+        As in :func:`pixels_to_dn`, shape (U,) (``hot_*`` (H,)).
+    false_u : ndarray of int64, shape (F,)
+        Compact id of each background crossing, −1 where it fell on a window pixel (:func:`sparse_pixel_set`).
+    false_dn : ndarray, shape (F,)
+        The crossings' DN (:func:`place_false_pixels`).
+    n_cols, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2, prnu_sigma
+        Detector width and the background: optical plane ``opt0 + opt_dx (x − cx) + opt_dy (y − cy)``
+        photoelectrons (clipped at 0), intensifier gain, its pixel variance per unit charge, dark charge e⁻, read
+        variance e⁻², PRNU σ.
+    full_well_e, gain_e_per_dn, bias_dn, adc_max_dn, k_sigma : float
+
+    Returns
+    -------
+    dn : ndarray of float32, shape (U,)
+    background_dn, threshold_dn : ndarray, shape (U,)
+        Expected background and the detection threshold ``background + k_sigma σ`` (shot, dark, read, PRNU and
+        1/12 DN² quantisation), DN.
+    """
+    u = len(z)
+    out = np.empty(u)
+    mean = np.empty(u)
+    thr = np.empty(u)
+    base_var = dark_e + read_var_e2
+    has_prnu = len(prnu) > 0
+    g2 = gain_e_per_dn * gain_e_per_dn
+    for i in range(u):
+        r = lin[i] // n_cols
+        c = lin[i] - r * n_cols
+        o = max(opt0 + opt_dx * (c - cx) + opt_dy * (r - cy), 0.0)
+        q_bg = gain * o
+        mean[i] = (q_bg + dark_e) / gain_e_per_dn + bias_dn
+        var = enf2_c * q_bg + dark_e + read_var_e2 + (prnu_sigma * q_bg) ** 2
+        thr[i] = mean[i] + k_sigma * math.sqrt(var / g2 + 1.0 / 12.0)
+        b = gain * o
+        f = 1.0 + np.float64(prnu[lin[i]]) if has_prnu else 1.0
+        if intensified:
+            q = spot_e[i] + b
+            sd = math.sqrt(enf2_c * q + base_var)
+            e = q * f + dark_e + sd * z[i]
+        else:
+            sd = math.sqrt(enf2_c * b + base_var)
+            e = sd * z[i] + b * f + dark_e + f * charge_e[i]
+        out[i] = e + direct_e[i]
+    for h in range(len(hot_u)):
+        i = hot_u[h]
+        out[i] += hot_e[h] + math.sqrt(hot_e[h]) * hot_z[h]
+    inv_gain = 1.0 / gain_e_per_dn
+    dn = np.empty(u, dtype=np.float32)
+    for i in range(u):
+        v = np.rint(min(out[i], full_well_e) * inv_gain + bias_dn)
+        dn[i] = min(max(v, 0.0), adc_max_dn)
+    for h in range(len(false_u)):
+        if false_u[h] >= 0:
+            dn[false_u[h]] = false_dn[h]
+    return dn, mean, thr
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
 def false_pixel_cells(col_edges, row_edges, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2,
                       prnu_sigma, gain_e_per_dn, bias_dn, saturation_dn, k_sigma):
     """Per cell of a grid: the background's crossing probability and its statistics at the cell centre.
@@ -644,39 +758,3 @@ def spots_from_paths(paths, total, sigma_px):
                 sub_xy[p, k, 1] = knots[e, j, 1] + (knots[e, j + 1, 1] - knots[e, j, 1]) * f
                 sub_w[p, k] = w
     return sub_xy, sub_w, sigma, path, along, length
-
-
-@njit(cache=True, no_cfunc_wrapper=True)
-def background_at_pixels(lin, n_cols, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2, prnu_sigma,
-                         gain_e_per_dn, bias_dn, k_sigma):
-    """The expected background of pixels: optical photoelectrons, level and detection threshold.
-
-    Parameters
-    ----------
-    lin : ndarray of int64, shape (U,)
-        Linear pixel indices.
-    n_cols : int
-    opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2, prnu_sigma, gain_e_per_dn, bias_dn : float
-        As in :class:`startracker.imaging.BackgroundField`.
-    k_sigma : float
-        Threshold in σ of the background (shot, dark, read, PRNU and 1/12 DN² quantisation).
-
-    Returns
-    -------
-    optical_pe, background_dn, threshold_dn : ndarray, shape (U,)
-    """
-    u = len(lin)
-    opt = np.empty(u)
-    mean = np.empty(u)
-    thr = np.empty(u)
-    g2 = gain_e_per_dn * gain_e_per_dn
-    for i in range(u):
-        r = lin[i] // n_cols
-        c = lin[i] - r * n_cols
-        o = max(opt0 + opt_dx * (c - cx) + opt_dy * (r - cy), 0.0)
-        q = gain * o
-        opt[i] = o
-        mean[i] = (q + dark_e) / gain_e_per_dn + bias_dn
-        var = enf2_c * q + dark_e + read_var_e2 + (prnu_sigma * q) ** 2
-        thr[i] = mean[i] + k_sigma * math.sqrt(var / g2 + 1.0 / 12.0)
-    return opt, mean, thr

@@ -471,24 +471,35 @@ def pixels_to_dn(intensified, spot_e, opt_bg_pe, prnu, lin, z, charge_e, direct_
     base_var = dark_e + read_var_e2
     has_prnu = len(prnu) > 0
     for i in range(u):
-        b = gain * opt_bg_pe[i]
         f = 1.0 + np.float64(prnu[lin[i]]) if has_prnu else 1.0
-        if intensified:
-            q = spot_e[i] + b
-            sd = math.sqrt(enf2_c * q + base_var)
-            e = q * f + dark_e + sd * z[i]
-        else:
-            sd = math.sqrt(enf2_c * b + base_var)
-            e = sd * z[i] + b * f + dark_e + f * charge_e[i]
-        out[i] = e + direct_e[i]
+        out[i] = _pixel_electrons(intensified, spot_e[i], gain * opt_bg_pe[i], f, z[i], charge_e[i], enf2_c, dark_e,
+                                  base_var) + direct_e[i]
     for h in range(len(hot_u)):
         i = hot_u[h]
         out[i] += hot_e[h] + math.sqrt(hot_e[h]) * hot_z[h]
     inv_gain = 1.0 / gain_e_per_dn
     for i in range(u):
-        v = np.rint(min(out[i], full_well_e) * inv_gain + bias_dn)
-        out[i] = min(max(v, 0.0), adc_max_dn)
+        out[i] = _digitise(out[i], full_well_e, inv_gain, bias_dn, adc_max_dn)
     return out
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _pixel_electrons(intensified, spot_e, b, f, z, charge_e, enf2_c, dark_e, base_var):
+    """One pixel's electrons before the ADC (see :func:`pixels_to_dn`): ``b`` its optical background e⁻ (after the
+    gain), ``f`` its PRNU factor, ``z`` its standard normal draw."""
+    if intensified:
+        q = spot_e + b
+        sd = math.sqrt(enf2_c * q + base_var)
+        return q * f + dark_e + sd * z
+    sd = math.sqrt(enf2_c * b + base_var)
+    return sd * z + b * f + dark_e + f * charge_e
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _digitise(e, full_well_e, inv_gain, bias_dn, adc_max_dn):
+    """Electrons to DN: clipped at the full well, converted, rounded, clipped to the ADC's range."""
+    v = np.rint(min(e, full_well_e) * inv_gain + bias_dn)
+    return min(max(v, 0.0), adc_max_dn)
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -535,24 +546,16 @@ def sparse_pixels_to_dn(intensified, spot_e, prnu, lin, z, charge_e, direct_e, h
         mean[i] = (q_bg + dark_e) / gain_e_per_dn + bias_dn
         var = enf2_c * q_bg + dark_e + read_var_e2 + (prnu_sigma * q_bg) ** 2
         thr[i] = mean[i] + k_sigma * math.sqrt(var / g2 + 1.0 / 12.0)
-        b = gain * o
         f = 1.0 + np.float64(prnu[lin[i]]) if has_prnu else 1.0
-        if intensified:
-            q = spot_e[i] + b
-            sd = math.sqrt(enf2_c * q + base_var)
-            e = q * f + dark_e + sd * z[i]
-        else:
-            sd = math.sqrt(enf2_c * b + base_var)
-            e = sd * z[i] + b * f + dark_e + f * charge_e[i]
-        out[i] = e + direct_e[i]
+        out[i] = _pixel_electrons(intensified, spot_e[i], q_bg, f, z[i], charge_e[i], enf2_c, dark_e,
+                                  base_var) + direct_e[i]
     for h in range(len(hot_u)):
         i = hot_u[h]
         out[i] += hot_e[h] + math.sqrt(hot_e[h]) * hot_z[h]
     inv_gain = 1.0 / gain_e_per_dn
     dn = np.empty(u, dtype=np.float32)
     for i in range(u):
-        v = np.rint(min(out[i], full_well_e) * inv_gain + bias_dn)
-        dn[i] = min(max(v, 0.0), adc_max_dn)
+        dn[i] = _digitise(out[i], full_well_e, inv_gain, bias_dn, adc_max_dn)
     for h in range(len(false_u)):
         if false_u[h] >= 0:
             dn[false_u[h]] = false_dn[h]

@@ -14,7 +14,6 @@ can be off by 0.1–0.3 mag. Stars without B − V (stored as 0 with a zero erro
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -146,7 +145,7 @@ class StarCatalog:
     def z_index(self) -> tuple:
         """The cone search's index: ``(vectors_by_z (S, 3), z_sorted (S,), order (S,) int64)``, the unit
         vectors sorted by their ICRS z component, those z values (ascending) and the catalog row of each (for a
-        compiled caller of :func:`startracker.kernels.catalog.cone_search_sorted_z`)."""
+        compiled caller of :func:`startracker.kernels.catalog.cone_search_angle`)."""
         return self._z_index
 
     def __repr__(self) -> str:
@@ -200,11 +199,7 @@ class StarCatalog:
         return [self._cone(np.ascontiguousarray(di), float(radius_rad)) for di in d.reshape(-1, 3)]
 
     def _cone(self, d: np.ndarray, radius_rad: float) -> np.ndarray:
-        v_by_z, z_sorted, z_order = self._z_index
-        if len(z_order) == 0:
-            return np.empty(0, dtype=np.int64)
-        chord = 2.0 * math.sin(radius_rad / 2.0) * (1 + 1e-12)
-        return catalog_kernels.cone_search_sorted_z(v_by_z, z_sorted, z_order, d, radius_rad, chord)
+        return catalog_kernels.cone_search_angle(*self._z_index, d, radius_rad)
 
 
 def _propagate(ra, dec, pmra_mas_yr, pmdec_mas_yr, years) -> np.ndarray:

@@ -14,7 +14,7 @@ from numba import njit
 
 from startracker.kernels.kvector import search_sorted, sort_values
 
-__all__ = ["cone_search_sorted_z"]
+__all__ = ["cone_search_sorted_z", "cone_search_angle"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -57,3 +57,24 @@ def cone_search_sorted_z(vectors_by_z, z_sorted, order, direction, radius_rad, c
             out[n] = order[j]
             n += 1
     return sort_values(out[:n])
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def cone_search_angle(vectors_by_z, z_sorted, order, direction, radius_rad):
+    """:func:`cone_search_sorted_z` with the chord of ``radius_rad`` widened by 1e-12 relative (what
+    :meth:`startracker.catalog.StarCatalog.cone_search` accepts), and no star for an empty catalog.
+
+    Parameters
+    ----------
+    vectors_by_z, z_sorted, order, direction, radius_rad
+        As :func:`cone_search_sorted_z` (``radius_rad`` in (0, π]).
+
+    Returns
+    -------
+    ndarray of int64, shape (P,)
+        Catalog rows, ascending.
+    """
+    if order.shape[0] == 0:
+        return np.empty(0, dtype=np.int64)
+    chord = 2.0 * math.sin(radius_rad / 2.0) * (1 + 1e-12)
+    return cone_search_sorted_z(vectors_by_z, z_sorted, order, direction, radius_rad, chord)

@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from startracker.kernels.catalog import cone_search_sorted_z
+from startracker.kernels.catalog import cone_search_angle
 from startracker.kernels.kvector import search_sorted
 
 __all__ = [
@@ -392,11 +392,7 @@ def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, 
     radius = half_diag_rad + drift + (margin_px + 2.0) / focal_length_px + 1e-6
     if math.pi < radius:  # min(radius, π) as Python's min has it
         radius = math.pi
-    if z_order.shape[0] == 0:
-        idx = np.empty(0, dtype=np.int64)
-    else:
-        chord = 2.0 * math.sin(radius / 2.0) * (1 + 1e-12)
-        idx = cone_search_sorted_z(vectors_by_z, z_sorted, z_order, centre, radius, chord)
+    idx = cone_search_angle(vectors_by_z, z_sorted, z_order, centre, radius)
     keep, xy_path, visible = project_scene(r_cw, vectors, idx, focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px,
                                            cy_px, n_path_samples, n_cols, n_rows, margin_px, cos_rot, sin_rot)
     m = keep.shape[0]

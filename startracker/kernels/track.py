@@ -17,7 +17,7 @@ from numba import njit
 
 from startracker.kernels.algebra import quat_multiply_into, quat_normalize_canonical, quat_to_rotation
 from startracker.kernels.attitude import solve_wahba_one
-from startracker.kernels.catalog import cone_search_sorted_z
+from startracker.kernels.catalog import cone_search_angle
 from startracker.kernels.kvector import kvector_fill, median_value, sort_values
 from startracker.kernels.sensor import innovation_chi2_mean
 
@@ -743,7 +743,7 @@ def track_frame_from_state(q0, omega, alpha, t_exp, t_ref, q_cam_to_body, half_d
     """The tracker's whole frame from its motion state: :func:`propagate_attitudes` to the instants, the cone search
     of the catalog around them, then :func:`track_frame`, in one call.
 
-    The cone (:func:`~startracker.kernels.catalog.cone_search_sorted_z`) is centred on the mean predicted boresight,
+    The cone (:func:`~startracker.kernels.catalog.cone_search_angle`) is centred on the mean predicted boresight,
     its half-angle ``min(π, half_diag_fov_rad + spread + radius_px / focal_length_px + 0.02)`` (the detector's
     corners, the boresights' spread over the frame, the neighbourhood radius and a margin), the chord test widened
     by 1e-12 relative as :meth:`startracker.catalog.StarCatalog.cone_search` does.
@@ -788,11 +788,7 @@ def track_frame_from_state(q0, omega, alpha, t_exp, t_ref, q_cam_to_body, half_d
     cone = half_diag_fov_rad + spread + radius_px / focal_length_px + 0.02
     if not cone < math.pi:  # min(π, cone), NaN to π as Python's min has it
         cone = math.pi
-    if z_order.shape[0] == 0:
-        cand = np.empty(0, dtype=np.int64)
-    else:
-        chord = 2.0 * math.sin(cone / 2.0) * (1 + 1e-12)
-        cand = cone_search_sorted_z(vectors_by_z, z_sorted, z_order, mid, cone, chord)
+    cand = cone_search_angle(vectors_by_z, z_sorted, z_order, mid, cone)
     n_pred, n_matched, q, cov, rms, n_used, ok, nis = track_frame(
         q_pred, r_c2i, cand, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot,
         width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad, min_stars, outlier_threshold_rad, t_exp, t_ref,

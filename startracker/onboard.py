@@ -144,8 +144,8 @@ _MONITOR_Z = 3.7190164854556804  # the standard normal quantile at 1 - MONITOR_F
 MONITOR_MEAN_CHI2_3 = chi2_3_threshold(MONITOR_FALSE_ALARM_P)
 MONITOR_DELIVERY_MEAN = True  # also test the newest delivery's own mean innovation (see _monitor_innovations)
 # Timing test: a frame's timestamp error δt moves all its samples by ω δt, along the body rate. The innovations'
-# component along ω, weighted and summed over a delivery, is χ²(1) without it (:meth:`StarTrackerUnit._timing_statistic`);
-# summed over the monitor's window, χ²(n). Below this rate, s⁻¹ (0.1 °/s) a timestamp error moves nothing.
+# component along ω, weighted and summed over a delivery, is χ²(1) without it
+# (:meth:`StarTrackerUnit._timing_statistic`); summed over the monitor's window, χ²(n). Below this rate, s⁻¹ (0.1 °/s) a timestamp error moves nothing.
 TIMING_MIN_RATE_RAD_S = float(np.radians(0.1))
 MONITOR_TIMING_CHI2_1 = NormalDist().inv_cdf(1.0 - MONITOR_FALSE_ALARM_P / 2.0) ** 2  # χ²(1) quantile, z² two-sided
 # After a timing alarm, valid again only once the window's timing sum is below χ²(n) at this standard-normal quantile
@@ -478,23 +478,25 @@ def _wrong_samples(t_true, q_meas, cov, times_s, q_body_to_icrs) -> np.ndarray:
                                              rows(q_body_to_icrs).reshape(-1, 4), VERDICT_CHI2_3)
 
 
-def _empty_stats(n_heads: int = 1, matching_latency_ms=0.0, matching_latency_ms_per_head=None,
+def _empty_stats(n_heads: int = 1, *, matching_latency_ms=0.0, matching_latency_ms_per_head=None,
                  matching_wall_clock_ms=0.0, matching_wall_clock_ms_per_head=None, wall_clock_breakdown_ms=None,
-                 n_stars=0, exposures_per_frame=0, n_attitude_samples=0) -> dict:
-    """The figures of a span or frame (:attr:`StarTrackerUnit.last_stats`): zero, or a frame's (its arguments), in
-    one dict literal, built once per frame."""
+                 n_stars=0, exposures_per_frame=0, n_attitude_samples=0, update_rate_hz=0.0,
+                 update_rate_hz_per_head=None, lost_lock_events=0, faults_active=None) -> dict:
+    """The figures of a span or frame (:attr:`StarTrackerUnit.last_stats`): zero, or a frame's or a span's (its
+    arguments; a per-head list left None is zeros), in one dict literal, built once per frame and span."""
+    zeros = [0.0] * n_heads
     return dict(
-        update_rate_hz=0.0,
-        update_rate_hz_per_head=[0.0] * n_heads,
+        update_rate_hz=update_rate_hz,
+        update_rate_hz_per_head=zeros if update_rate_hz_per_head is None else update_rate_hz_per_head,
         matching_latency_ms=matching_latency_ms,
-        matching_latency_ms_per_head=([0.0] * n_heads if matching_latency_ms_per_head is None
+        matching_latency_ms_per_head=(list(zeros) if matching_latency_ms_per_head is None
                                       else matching_latency_ms_per_head),
         n_stars=n_stars,
         exposures_per_frame=exposures_per_frame,
         n_attitude_samples=n_attitude_samples,
-        lost_lock_events=0,
+        lost_lock_events=lost_lock_events,
         matching_wall_clock_ms=matching_wall_clock_ms,
-        matching_wall_clock_ms_per_head=([0.0] * n_heads if matching_wall_clock_ms_per_head is None
+        matching_wall_clock_ms_per_head=(list(zeros) if matching_wall_clock_ms_per_head is None
                                          else matching_wall_clock_ms_per_head),
         wall_clock_breakdown_ms=(dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
                                  if wall_clock_breakdown_ms is None else wall_clock_breakdown_ms),
@@ -503,7 +505,7 @@ def _empty_stats(n_heads: int = 1, matching_latency_ms=0.0, matching_latency_ms_
         estimate_wrong=False,
         estimate_confidently_wrong=False,
         filter_restarts=0,
-        faults_active=[],
+        faults_active=[] if faults_active is None else faults_active,
     )
 
 
@@ -928,34 +930,19 @@ class StarTrackerUnit:
         # distinct attitude instants: heads exposed at the same instant add samples, not updates (round half to
         # even, as np.round)
         n_instants = len({round(smp.t_s * 1e6) for smp in samples})
+        means = {}  # the frames' mean figures (none without frames: _empty_stats' zeros)
         if n_frames:
-            per_lat = [v / n_frames for v in per_head_lat]
-            per_wall = [v / n_frames for v in per_head_wall]
-            breakdown = dict(predict_match=bd_pm / n_frames, group_solve_test=bd_gst / n_frames,
-                             identify=bd_id / n_frames)
-        else:
-            per_lat, per_wall = [0.0] * n_heads, [0.0] * n_heads
-            breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
-        # the keys of _empty_stats, in its order
-        stats = dict(
-            update_rate_hz=n_instants / duration_s,
-            update_rate_hz_per_head=[v / duration_s for v in per_head_n],
-            matching_latency_ms=lat_sum / n_frames if n_frames else 0.0,
-            matching_latency_ms_per_head=per_lat,
-            n_stars=n_stars,
-            exposures_per_frame=exposures_per_frame,
-            n_attitude_samples=len(samples),
-            lost_lock_events=self._lost_events,
-            matching_wall_clock_ms=wall_sum / n_frames if n_frames else 0.0,
-            matching_wall_clock_ms_per_head=per_wall,
-            wall_clock_breakdown_ms=breakdown,
-            n_wrong_samples=0,
-            n_confidently_wrong_samples=0,
-            estimate_wrong=False,
-            estimate_confidently_wrong=False,
-            filter_restarts=0,
-            faults_active=faults.active_kinds(t0, times[-1]) if faults else [],
-        )
+            means = dict(matching_latency_ms=lat_sum / n_frames,
+                         matching_latency_ms_per_head=[v / n_frames for v in per_head_lat],
+                         matching_wall_clock_ms=wall_sum / n_frames,
+                         matching_wall_clock_ms_per_head=[v / n_frames for v in per_head_wall],
+                         wall_clock_breakdown_ms=dict(predict_match=bd_pm / n_frames,
+                                                      group_solve_test=bd_gst / n_frames, identify=bd_id / n_frames))
+        stats = _empty_stats(n_heads, **means, n_stars=n_stars, exposures_per_frame=exposures_per_frame,
+                             n_attitude_samples=len(samples), update_rate_hz=n_instants / duration_s,
+                             update_rate_hz_per_head=[v / duration_s for v in per_head_n],
+                             lost_lock_events=self._lost_events,
+                             faults_active=faults.active_kinds(t0, times[-1]) if faults else [])
         self.last_samples = samples
         if samples:  # judged against this span's truth now, counted when the filter has seen them
             t_arr, q_arr, c_arr = _sample_arrays(samples)
@@ -1100,10 +1087,11 @@ class StarTrackerUnit:
         Statistics of the window (:func:`startracker.kernels.filter.innovation_window`): the spread, Σ NIS
         against χ²(3 n), and the mean, (Σz)ᵀ (ΣS)⁻¹ (Σz) against χ²(3): a bias drags the innovations one way, and
         the mean sees a steady offset √n times sooner than the spread; the same mean over the newest delivery alone
-        (:data:`MONITOR_DELIVERY_MEAN`), where a drift that has just begun is not diluted by the window; and the timing test of each delivery before
-        it was fused (:meth:`_timing_statistic`), summed against χ²(n): a frame whose timestamp is off moves all its
-        samples along ω, a frame's worth of shared error the filter would otherwise average as if independent (a
-        single delivery beyond χ²(1) is refused before fusion, in :meth:`_deliver`)."""
+        (:data:`MONITOR_DELIVERY_MEAN`), where a drift that has just begun is not diluted by the window; each of its
+        samples' own NIS (:data:`MONITOR_SAMPLE_NIS`); and the timing test of each delivery before it was fused
+        (:meth:`_timing_statistic`), summed against χ²(n): a frame whose timestamp is off moves all its samples along
+        ω, a frame's worth of shared error the filter would otherwise average as if independent (a single delivery
+        beyond χ²(1) is refused before fusion, in :meth:`_deliver`)."""
         fusion = self.fusion
         if len(fusion.last_innovation_rad) == 0:
             return
@@ -1365,9 +1353,11 @@ class StarTrackerUnit:
             self._last_frame = frames[0]
         self._frame_latency_ms = latency_ms = sum(head_latency)
         self._frame_wall_ms = wall_ms = sum(head_wall)
-        self.last_stats = _empty_stats(n_heads, latency_ms, head_latency, wall_ms, head_wall,
-                                       dict(predict_match=bd_pm, group_solve_test=bd_gst, identify=bd_id), n_matched,
-                                       n_exp, len(samples))
+        self.last_stats = _empty_stats(
+            n_heads, matching_latency_ms=latency_ms, matching_latency_ms_per_head=head_latency,
+            matching_wall_clock_ms=wall_ms, matching_wall_clock_ms_per_head=head_wall,
+            wall_clock_breakdown_ms=dict(predict_match=bd_pm, group_solve_test=bd_gst, identify=bd_id),
+            n_stars=n_matched, exposures_per_frame=n_exp, n_attitude_samples=len(samples))
         return samples
 
     # ------------------------------------------------------------------ outputs

@@ -227,6 +227,24 @@ def _argmax_first(v):
     return worst
 
 
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _gather_instants(idx, t, q_pred, q_sol, cov):
+    """The rows ``idx`` of an instants' time (N,), predicted and solved attitudes (N, 4) and covariances (N, 3, 3),
+    as fresh contiguous arrays."""
+    m = idx.shape[0]
+    ts = np.empty(m)
+    qp = np.empty((m, 4))
+    qs = np.empty((m, 4))
+    cs = np.empty((m, 3, 3))
+    for k in range(m):
+        j = idx[k]
+        ts[k] = t[j]
+        qp[k] = q_pred[j]
+        qs[k] = q_sol[j]
+        cs[k] = cov[j]
+    return ts, qp, qs, cs
+
+
 @njit(cache=True)
 def smooth_instants(q_pred, q_sol, cov_sol, tau_s, gate):
     """The instants of a tracked frame that lie on a smooth motion (the tracker's smoothness test).
@@ -263,16 +281,7 @@ def smooth_instants(q_pred, q_sol, cov_sol, tau_s, gate):
     m = n
     while m >= 4:
         degree = 2 if m >= 6 else 1
-        qp = np.empty((m, 4))
-        qs = np.empty((m, 4))
-        cs = np.empty((m, 3, 3))
-        ts = np.empty(m)
-        for k in range(m):
-            j = idx[k]
-            qp[k] = q_pred[j]
-            qs[k] = q_sol[j]
-            cs[k] = cov_sol[j]
-            ts[k] = tau_s[j]
+        ts, qp, qs, cs = _gather_instants(idx[:m], tau_s, q_pred, q_sol, cov_sol)
         chi2 = instant_deleted_chi2(qp, qs, cs, ts, degree)
         worst = _argmax_first(chi2)
         if not chi2[worst] > gate:
@@ -324,17 +333,7 @@ def accept_instants(sel, t_exp, q_pred, q_all, cov_all, rms_arcsec, n_stars, gat
         Scaled covariances, rad².
     n : ndarray of int64, shape (m,)
     """
-    s = sel.shape[0]
-    ts = np.empty(s)
-    qp = np.empty((s, 4))
-    qs = np.empty((s, 4))
-    cs = np.empty((s, 3, 3))
-    for k in range(s):
-        j = sel[k]
-        ts[k] = t_exp[j]
-        qp[k] = q_pred[j]
-        qs[k] = q_all[j]
-        cs[k] = cov_all[j]
+    ts, qp, qs, cs = _gather_instants(sel, t_exp, q_pred, q_all, cov_all)
     keep = smooth_instants(qp, qs, cs, ts, gate)
     m = keep.shape[0]
     kept = np.empty(m, dtype=np.int64)
@@ -363,4 +362,4 @@ def accept_instants(sel, t_exp, q_pred, q_all, cov_all, rms_arcsec, n_stars, gat
             for a in range(3):
                 for b in range(3):
                     cov[k, a, b] *= factor[k]
-    return s - m, kept, t_s, q, cov, n
+    return sel.shape[0] - m, kept, t_s, q, cov, n

@@ -104,19 +104,26 @@ class ExposurePlan:
         object.__setattr__(self, "spacing_s", float(spacing))
         object.__setattr__(self, "frame_period_s", period)
         object.__setattr__(self, "start_offset_s", offset)
+        # ``spacing · arange(N)``, once per plan (read-only; not a field: equality and hashing ignore it)
+        steps = float(spacing) * np.arange(n)
+        steps.setflags(write=False)
+        object.__setattr__(self, "_start_steps", steps)
 
     # ------------------------------------------------------------------ timing
     def exposure_start_times(self, t_frame_start: float) -> np.ndarray:
         """Start instant of each exposure, s, shape (N,)."""
-        if type(t_frame_start) is float and math.isfinite(t_frame_start):  # the per-frame caller's float
+        tt = type(t_frame_start)
+        if (tt is float or tt is np.float64) and math.isfinite(t_frame_start):  # the per-frame caller's float
             t0 = t_frame_start
         else:
             t0 = float(as_float_array(t_frame_start, "t_frame_start", ndim=0))
-        return t0 + self.start_offset_s + self.spacing_s * np.arange(self.n_exposures)
+        return t0 + self.start_offset_s + self._start_steps
 
     def exposure_mid_times(self, t_frame_start: float) -> np.ndarray:
         """Timestamp of each exposure (its mid instant), s, shape (N,)."""
-        return self.exposure_start_times(t_frame_start) + 0.5 * self.exposure_s
+        t = self.exposure_start_times(t_frame_start)
+        t += 0.5 * self.exposure_s  # in place: the array is this call's own
+        return t
 
     def exposure_end_times(self, t_frame_start: float) -> np.ndarray:
         """End instant of each exposure, s, shape (N,)."""
@@ -442,6 +449,8 @@ def _evaluate_attitude(attitude, t: np.ndarray, validate: bool) -> np.ndarray:
 
 
 _CAMERA_CACHE: dict = {}
+_new_object = object.__new__
+_set_attribute = object.__setattr__
 
 
 def _camera_constants(camera: Camera):
@@ -619,22 +628,13 @@ def compute_scene(
             d_cam = np.einsum("tji,j->ti", r_cw_mid, np.asarray(b.direction_world))
             views.append(BrightBodyView(b.name, np.arccos(np.clip(d_cam[:, 2], -1.0, 1.0)), d_cam))
 
-    return Scene(
-        camera=camera,
-        plan=plan,
-        t_frame_start=t0,
-        times=path_times[:, s // 2].copy(),
-        path_times=path_times,
-        star_index=idx,
-        hip=hip,
-        vmag=vmag,
-        bv=bv,
-        xy_path=xy_path,
-        visible=visible,
-        q_body_to_icrs=q_mid,
-        q_cam_to_icrs=q_cam_mid,
-        bright_bodies=tuple(views),
-    )
+    # the frozen Scene's fields set at once (its generated __init__ sets them one by one through object.__setattr__)
+    scene = _new_object(Scene)
+    _set_attribute(scene, "__dict__", {
+        "camera": camera, "plan": plan, "t_frame_start": t0, "times": path_times[:, s // 2].copy(),
+        "path_times": path_times, "star_index": idx, "hip": hip, "vmag": vmag, "bv": bv, "xy_path": xy_path,
+        "visible": visible, "q_body_to_icrs": q_mid, "q_cam_to_icrs": q_cam_mid, "bright_bodies": tuple(views)})
+    return scene
 
 
 def scene_from_tracks(

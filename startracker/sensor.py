@@ -81,6 +81,18 @@ _NO_FLUX = np.zeros(0)
 _NO_FLUX.setflags(write=False)
 
 
+_new_object = object.__new__
+_set_attribute = object.__setattr__
+
+
+def _built(cls, values: dict):
+    """An instance of the frozen dataclass ``cls`` (no ``__post_init__``) from ``values``, every field in declaration
+    order: its fields set at once (the generated ``__init__`` sets them one by one through ``object.__setattr__``)."""
+    obj = _new_object(cls)
+    _set_attribute(obj, "__dict__", values)
+    return obj
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     """``a`` made read-only (a constant shared by motion states)."""
     a.setflags(write=False)
@@ -466,7 +478,8 @@ class StarTracker:
         if hit is not None and hit[0] is st and hit[1] == period and hit[2] == self._last_exp_centre:
             return hit[3]
         w = st.omega_body
-        n_rate = 1 + round(math.degrees(math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])) / self.rate_per_exposure_deg_s)
+        w0, w1, w2 = w.tolist()  # Python floats: the same products and sum as on numpy scalars, without their boxing
+        n_rate = 1 + round(math.degrees(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)) / self.rate_per_exposure_deg_s)
         # The next frame's last exposure: its centre is one interval after the last frame's centre, and its
         # exposures spread over at most a frame period.
         horizon = max(period, self._last_exp_centre + 1.5 * period - st.t_s)
@@ -709,7 +722,8 @@ class StarTracker:
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
                                        f"apart, prediction σ {sig_pred:.1f} px)", [], 0, 0, r, latency)
         t_ref = float(st.t_s)
-        q0 = rk.quat_normalize(np.asarray(st.q_body_to_icrs, dtype=np.float64))
+        # quat_normalize's kernel on the state's one row (its float64 copy: no wrapper for one quaternion)
+        q0 = rk.normalize_rows(np.ascontiguousarray(st.q_body_to_icrs, dtype=np.float64).reshape(1, 4))[0]
         if self._frame_model is not None:
             # prediction's attitudes, cone search, projection, matching, N Wahba and innovation: one compiled call
             q_pred_all, n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = track_kernels.track_frame_from_state(
@@ -728,8 +742,8 @@ class StarTracker:
         sel = ok.nonzero()[0]
         n_ok = len(sel)
         if n_ok:
-            res_ok = rms_all[sel]
-            rms = math.sqrt(float(res_ok @ res_ok) / n_ok)
+            res_ok = rms_all if n_ok == len(rms_all) else rms_all[sel]  # all solved: no gather
+            rms = math.sqrt(float(np.dot(res_ok, res_ok)) / n_ok)
         else:
             rms = float("inf")
         skipped = () if n_ok == len(ok) else tuple((~ok).nonzero()[0].tolist())
@@ -770,7 +784,8 @@ class StarTracker:
             n_ok = len(kept)
             skipped = tuple(sorted(set(range(len(t_exp))) - set(kept.tolist())))
             base["skipped"] = skipped
-        samples = list(map(AttitudeSample, t_s.tolist(), q_sol, cov_sol, n_sol.tolist()))
+        samples = [_built(AttitudeSample, {"t_s": t, "q_body_to_icrs": q, "covariance_rad2": c, "n_stars": n})
+                   for t, q, c, n in zip(t_s.tolist(), q_sol, cov_sol, n_sol.tolist())]
         new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)
         status = f"tracking {n_ok}/{len(t_exp)} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
         if skipped:
@@ -833,7 +848,9 @@ class StarTracker:
             alpha, cov_alpha = np.zeros(3), np.zeros((3, 3))
         lever = t_ref - t_m
         cov_w = cov_m + (cov_alpha + self._var_proc) * lever**2
-        return MotionState(t_ref, q_ref, cov_ref, w_m + alpha * lever, cov_w, alpha, cov_alpha, meas, alpha_known)
+        return _built(MotionState, {"t_s": t_ref, "q_body_to_icrs": q_ref, "cov_theta_rad2": cov_ref,
+                                    "omega_body": w_m + alpha * lever, "cov_omega": cov_w, "alpha_body": alpha,
+                                    "cov_alpha": cov_alpha, "rate_meas": meas, "alpha_known": alpha_known})
 
     # ------------------------------------------------------------------ helpers
     def _identify(self, xy, intensity):
@@ -861,8 +878,9 @@ class StarTracker:
 
     def _result(self, att: _Attempt, xy, t_exp, status=None, samples=None) -> FrameResult:
         text = att.status if status is None else (status if not att.ok else f"{status}; {att.status}")
-        samples = list(samples or [])
-        return FrameResult(
-            self._mode, samples, att.n_matched, len(xy), att.latency_ms, len(samples) / self._dt_frame, text, len(t_exp),
-            att.n_predicted, att.radius_px, 0.0, att.residual_arcsec, att.skipped,
-        )
+        samples = samples if samples else []  # the attempt's own fresh list (nothing else holds it): no copy
+        return _built(FrameResult, {
+            "mode": self._mode, "samples": samples, "n_matched": att.n_matched, "n_detections": len(xy),
+            "matching_latency_ms": att.latency_ms, "update_rate_hz": len(samples) / self._dt_frame, "status": text,
+            "n_exposures": len(t_exp), "n_predicted": att.n_predicted, "radius_px": att.radius_px,
+            "identify_latency_ms": 0.0, "residual_arcsec": att.residual_arcsec, "skipped_instants": att.skipped})

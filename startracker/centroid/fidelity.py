@@ -194,6 +194,24 @@ def _star_pe_constants(model: SensorModel):
     return v
 
 
+_HOT_CACHE: dict = {}
+_new_object = object.__new__
+_set_attribute = object.__setattr__
+
+
+def _hot_pixels(model: SensorModel, resolution):
+    """``fixed_pattern(model, resolution)``'s hot pixels ``(index (H,), e⁻/s (H,))``, looked up once per (frozen) model
+    and detector size (its cache key is seven of the model's numbers)."""
+    hit = _HOT_CACHE.get(id(model))
+    if hit is not None and hit[0] is model and hit[1] == resolution:
+        return hit[2]
+    _, hot_idx, hot_rate = fixed_pattern(model, resolution)
+    if len(_HOT_CACHE) > 64:
+        _HOT_CACHE.clear()
+    _HOT_CACHE[id(model)] = (model, resolution, (hot_idx, hot_rate))
+    return hot_idx, hot_rate
+
+
 _KINDS = np.array([KIND_STAR, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_NOISE], dtype=np.int64)
 _NO_FALSE = FalseObjects.none()
 _EMPTY_1 = np.zeros(0)
@@ -226,7 +244,7 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
     n_cand = n * len(scene.star_index) + n * nd + len(fo.cosmic_e)
     u = rng.random(n_cand)
     if include_false:
-        _, hot_idx, hot_rate = fixed_pattern(model, scene.camera.resolution)
+        hot_idx, hot_rate = _hot_pixels(model, scene.camera.resolution)
         # the candidates' three normals and the hot pixels' one in one draw (the stream of two draws in that order)
         zz = rng.standard_normal(3 * n_cand + len(hot_idx))
         z = zz[:3 * n_cand].reshape(n_cand, 3)
@@ -240,7 +258,12 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
         fo.cosmic_start_xy, fo.cosmic_end_xy, fo.cosmic_e, hot_idx, hot_rate, f_lin, f_dn,
         u, z, z_hot, _background_vector(bg), _sensor_vector(model), _factor_vector(err), float(k_sigma),
         n_cols, n_rows, _KINDS)
-    return Centroids(xy, inten, area, sat, peak, snr, bg_dn, noise_dn, star, expo, kind, truth_xy)
+    # the frozen Centroids' fields set at once (its generated __init__ sets them one by one through object.__setattr__)
+    det = _new_object(Centroids)
+    _set_attribute(det, "__dict__", {
+        "xy": xy, "intensity": inten, "area": area, "saturated": sat, "peak": peak, "snr": snr, "background_dn": bg_dn,
+        "noise_dn": noise_dn, "truth_star": star, "truth_exposure": expo, "truth_kind": kind, "truth_xy": truth_xy})
+    return det
 
 
 def candidate_pairs(xy: np.ndarray, r: float) -> np.ndarray:

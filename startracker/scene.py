@@ -598,7 +598,7 @@ def compute_scene(
     n = plan.n_exposures
     start_steps, path_steps, mid_rows = _plan_offsets(plan, s)
     starts = (t0 + plan.start_offset_s) + start_steps
-    path_times = starts[:, None] + path_steps[None, :]
+    path_times = np.add.outer(starts, path_steps)  # starts[:, None] + path_steps[None, :]
     if pinhole is not None and not validate and isinstance(attitude, tuple) and len(attitude) == 2:
         # the per-frame path: attitudes, cone search, projection and the kept stars' fields in one compiled call
         r_cw, q_mid, q_cam_mid, idx, hip, vmag, bv, xy_path, visible = sk.scene_frame(

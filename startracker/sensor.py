@@ -716,7 +716,8 @@ class StarTracker:
             # Spots of one star one exposure apart must be well separated against the prediction error,
             # or the whole frame may match one exposure off (3/4 of the exposure plan's margin).
             w_cam = self._r_body_to_cam @ omega
-            spacing_px = math.hypot(w_cam[0], w_cam[1]) * float((t_exp[1:] - t_exp[:-1]).min()) * self._f_px
+            tl = t_exp.tolist()  # the smallest exposure spacing on Python floats (the same differences, exactly)
+            spacing_px = math.hypot(w_cam[0], w_cam[1]) * min([b - a for a, b in zip(tl, tl[1:])]) * self._f_px
             if spacing_px < 1.5 * self.shift_k_sigma * sig_pred:
                 latency = (time.perf_counter() - t0) * 1e3
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
@@ -790,7 +791,7 @@ class StarTracker:
         status = f"tracking {n_ok}/{len(t_exp)} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
         if skipped:
             status += f", skipped instants {list(skipped)}"
-        return _Attempt(True, status, samples, state=new_state, **base)
+        return _Attempt(True, status, samples, n_matched, n_pred, r, latency, rms, skipped, new_state)
 
     def _track_stages(self, xy, t_exp, q0, t_ref, omega, alpha, r, cov_theta, cov_w, cov_a):
         """The compiled frame's results through the public stages (a camera with its own projection, cKDTree)."""

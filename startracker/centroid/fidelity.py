@@ -232,7 +232,13 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
     n = plan.n_exposures
     fo = draw_false_objects(scene, model, rng, validate=False) if include_false else _NO_FALSE
     rate0, color_term = _star_pe_constants(model)
-    star_pe = rate0 * 10.0 ** (-0.4 * (scene.vmag + color_term * scene.bv)) * tau
+    # rate0 · 10^(−0.4 (V + c (B−V))) · τ, its products and sums in place (the same operations on the same operands)
+    x = scene.bv * color_term
+    x += scene.vmag
+    x *= -0.4
+    star_pe = 10.0 ** x
+    star_pe *= rate0
+    star_pe *= tau
     nd = len(fo.debris_vmag)
     if nd:
         debris_pe = rate0 * 10.0 ** (-0.4 * (fo.debris_vmag + color_term * np.zeros(nd))) * tau

@@ -392,3 +392,28 @@ def test_validate_false_gives_the_same_scene():
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
     # the camera attitude is the body attitude composed with the mounting
     np.testing.assert_allclose(a.q_cam_to_icrs, quat_multiply(a.q_body_to_icrs, np.asarray(CAM.q_cam_to_body)), atol=1e-15)
+
+
+def test_per_frame_scene_and_detections_are_complete_dataclasses():
+    """The head's per-frame Scene and Centroids are built with their fields set at once: every field is there, in
+    order, as the generated __init__ would set them; the plan's times agree with its fields."""
+    import dataclasses
+
+    from startracker.head import make_head
+
+    head = make_head("paper000")
+    plan = ExposurePlan(n_exposures=4, exposure_s=0.002, frame_period_s=0.1)
+    t = np.linspace(0.0, 0.2, 21)
+    q = quat_integrate(np.array([1.0, 0.0, 0.0, 0.0]), np.radians([0.0, 3.0, 4.0]), t - 0.0)
+    det, scene = head.detections(load_catalog(6.0), (t, np.ascontiguousarray(q)), plan, np.float64(0.05),
+                                 np.random.default_rng(1))
+    assert len(det) > 0 and scene.n_stars > 0
+    for obj in (det, scene):
+        names = [f.name for f in dataclasses.fields(obj)]
+        assert list(vars(obj)) == names
+        rebuilt = dataclasses.replace(obj)
+        assert all(getattr(obj, n) is getattr(rebuilt, n) for n in names)
+    # np.float64 frame times take the plan's fast path: the same instants as from their float
+    np.testing.assert_array_equal(plan.exposure_mid_times(np.float64(0.05)), plan.exposure_mid_times(0.05))
+    np.testing.assert_allclose(plan.exposure_mid_times(0.05), 0.05 + 0.025 * np.arange(4) + 0.001, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(scene.times, plan.exposure_mid_times(0.05))

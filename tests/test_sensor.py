@@ -1,6 +1,8 @@
 """The StarTracker state machine on simulated slews: acquisition, N attitudes per frame, loss and recovery,
 the 20 °/s closed loop of paper 000 (≥ 200 Hz with N = 21), and no confident wrong attitude from false objects."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -330,3 +332,28 @@ def test_residuals_beyond_the_centroid_model_widen_the_sample_covariance(cam, na
     assert len(scaled) > 30 and len(raw) > 30
     assert np.mean(scaled) < 4.5
     assert np.mean(raw) > 2.5 * np.mean(scaled)
+
+
+def _field_names_and_values_hold(obj):
+    """``obj`` holds exactly its dataclass's fields, in declaration order, as its own ``__init__`` would set them."""
+    names = [f.name for f in dataclasses.fields(obj)]
+    assert list(vars(obj)) == names
+    rebuilt = dataclasses.replace(obj)  # the generated __init__ with every field read back from obj
+    for name in names:
+        a, b = getattr(obj, name), getattr(rebuilt, name)
+        assert a is b or a == b, name
+
+
+def test_frame_results_samples_and_states_are_complete_dataclasses(cam, nav):
+    """The per-frame results are built with their fields set at once: every field is there, in order."""
+    rng = np.random.default_rng(8)
+    slew = Slew(rng, 5.0)
+    st = StarTracker(cam, nav, centroid_sigma_px=SIGMA_PX)
+    res = run(st, cam, nav, slew, range(5), rng)[-1][3]
+    assert res.mode == "track" and res.samples
+    _field_names_and_values_hold(res)
+    for s in res.samples:
+        assert isinstance(s, AttitudeSample)
+        _field_names_and_values_hold(s)
+    assert isinstance(st.state, MotionState)
+    _field_names_and_values_hold(st.state)

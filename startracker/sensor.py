@@ -683,19 +683,22 @@ class StarTracker:
         var_proc = self._var_proc
         lever = st.t_s - t_frame
         prev = st.rate_meas
+        # (kernels.sensor: gyro + alpha lever and var_g + cov lever², rate differences, in one call each)
         if self._frame_alpha is not None:
             # the gyro's own acceleration over this frame: a torque change at the frame's start is in it
             alpha = self._frame_alpha
-            return (gyro + alpha * lever, alpha, var_g + self._cov_alpha_gyro * lever**2,
-                    self._cov_alpha_gyro_total)
+            w, cov_w = sensor_kernels.rate_at(gyro, var_g, alpha, self._cov_alpha_gyro, lever, lever**2)
+            return w, alpha, cov_w, self._cov_alpha_gyro_total
         if prev is not None and 0 < t_frame - prev[0] <= self.coast_max_s:
-            alpha = (gyro - prev[1]) / (t_frame - prev[0])
-            cov_a = (var_g + prev[2]) / (t_frame - prev[0]) ** 2
-            cov_w = var_g + cov_a * lever**2
-        else:  # one reading only: extrapolating it to st.t_s also carries the unmodelled acceleration
-            alpha, cov_a = st.alpha_body, st.cov_alpha
-            cov_w = var_g + (cov_a + var_proc) * lever**2
-        return gyro + alpha * lever, alpha, cov_w, cov_a + var_proc
+            dt = t_frame - prev[0]
+            alpha, cov_a = sensor_kernels.rate_difference(gyro, var_g, prev[1], prev[2], dt, dt**2)
+            w, cov_w = sensor_kernels.rate_at(gyro, var_g, alpha, cov_a, lever, lever**2)
+            return w, alpha, cov_w, cov_a + var_proc
+        # one reading only: extrapolating it to st.t_s also carries the unmodelled acceleration
+        alpha, cov_a = st.alpha_body, st.cov_alpha
+        cov_a_total = cov_a + var_proc
+        w, cov_w = sensor_kernels.rate_at(gyro, var_g, alpha, cov_a_total, lever, lever**2)
+        return w, alpha, cov_w, cov_a_total
 
     def _track(self, xy, t_exp, st: MotionState, gyro, t_frame, extra_var_alpha: float = 0.0) -> _Attempt:
         t0 = time.perf_counter()
@@ -839,8 +842,7 @@ class StarTracker:
         alpha_known = False
         if prev is not None and 0.5 * self._frame_interval_s <= t_m - prev[0] <= self.coast_max_s:
             dtm = t_m - prev[0]
-            alpha = (w_m - prev[1]) / dtm
-            cov_alpha = (cov_m + prev[2]) / dtm**2
+            alpha, cov_alpha = sensor_kernels.rate_difference(w_m, cov_m, prev[1], prev[2], dtm, dtm**2)
             alpha_known = True
         elif prev is not None and 0 <= t_m - prev[0] < 0.5 * self._frame_interval_s:
             # Too close to the previous measurement to difference: keep the earlier one and its estimate.
@@ -848,9 +850,9 @@ class StarTracker:
         else:
             alpha, cov_alpha = np.zeros(3), np.zeros((3, 3))
         lever = t_ref - t_m
-        cov_w = cov_m + (cov_alpha + self._var_proc) * lever**2
+        omega, cov_w = sensor_kernels.rate_at(w_m, cov_m, alpha, cov_alpha + self._var_proc, lever, lever**2)
         return _built(MotionState, {"t_s": t_ref, "q_body_to_icrs": q_ref, "cov_theta_rad2": cov_ref,
-                                    "omega_body": w_m + alpha * lever, "cov_omega": cov_w, "alpha_body": alpha,
+                                    "omega_body": omega, "cov_omega": cov_w, "alpha_body": alpha,
                                     "cov_alpha": cov_alpha, "rate_meas": meas, "alpha_known": alpha_known})
 
     # ------------------------------------------------------------------ helpers

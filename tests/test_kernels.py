@@ -486,3 +486,21 @@ def test_wrong_sample_flags_against_scipy_slerp_and_solve(seed):
 
 
 VERDICT = 44.8  # the χ²(3) level of startracker.onboard.VERDICT_CHI2_3, rounded
+
+
+def test_rate_kernels_are_the_numpy_expressions_bit_for_bit():
+    """kernels.sensor.rate_difference and rate_at give exactly the floats of the numpy expressions they replace in the
+    tracker's motion state ((ω₁ − ω₀)/dt, (C₁ + C₀)/dt², ω + α lever, C_ω + C_α lever²): episodes stay the same."""
+    from startracker.kernels.sensor import rate_at, rate_difference
+
+    rng = np.random.default_rng(14)
+    for _ in range(200):
+        w1, w0, a = rng.normal(0, 0.3, (3, 3))
+        c1, c0, ca = (m @ m.T * 10.0 ** rng.uniform(-12, -4) for m in rng.normal(size=(3, 3, 3)))
+        dt, lever = rng.uniform(1e-3, 1.0), rng.uniform(-0.2, 0.2)
+        alpha, cov_alpha = rate_difference(w1, c1, w0, c0, dt, dt**2)
+        np.testing.assert_array_equal(alpha, (w1 - w0) / dt)
+        np.testing.assert_array_equal(cov_alpha, (c1 + c0) / dt**2)
+        w, cov = rate_at(w1, c1, a, ca, lever, lever**2)
+        np.testing.assert_array_equal(w, w1 + a * lever)
+        np.testing.assert_array_equal(cov, c1 + ca * lever**2)

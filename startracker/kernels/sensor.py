@@ -1,5 +1,5 @@
 """Star-tracker bookkeeping kernels: the lock's innovation test, the instants' smoothness test, the accepted
-instants of a tracked frame and the consistency verdict, no checks.
+instants of a tracked frame, the motion state's rate arithmetic and the consistency verdict, no checks.
 
 The callers are :class:`startracker.sensor.StarTracker` (the innovation χ² of a tracked frame) and the verdicts of
 :mod:`startracker.onboard` (:func:`~startracker.onboard.judge_samples`, :func:`~startracker.onboard.judge_estimate`:
@@ -15,7 +15,78 @@ from startracker.kernels.algebra import mahalanobis3
 from startracker.kernels.rotations import interpolate_rows, normalize_rows, relative_rotvec_rows
 
 __all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2", "smooth_instants", "accept_instants",
-           "wrong_sample_flags"]
+           "wrong_sample_flags", "rate_difference", "rate_at"]
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def rate_difference(omega1, cov1, omega0, cov0, dt_s, dt2_s2):
+    """Angular acceleration from two rate measurements ``dt_s`` apart, and its covariance: ``(ω₁ − ω₀) / dt`` and
+    ``(C₁ + C₀) / dt²`` (the numpy expressions' operations, element by element; the tracker's motion state).
+
+    Parameters
+    ----------
+    omega1, omega0 : ndarray, shape (3,)
+        The later and the earlier rate, rad/s.
+    cov1, cov0 : ndarray, shape (3, 3)
+        Their covariances, (rad/s)².
+    dt_s : float
+        Time from the earlier to the later, s (> 0).
+    dt2_s2 : float
+        ``dt_s ** 2`` as the caller computes it, s².
+
+    Returns
+    -------
+    alpha : ndarray, shape (3,)
+        rad/s².
+    cov_alpha : ndarray, shape (3, 3)
+        (rad/s²)².
+    """
+    alpha = np.empty(3)
+    for i in range(3):
+        alpha[i] = (omega1[i] - omega0[i]) / dt_s
+    cov = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            cov[i, j] = (cov1[i, j] + cov0[i, j]) / dt2_s2
+    return alpha, cov
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def rate_at(omega, cov_omega, alpha, cov_alpha, lever_s, lever2_s2):
+    """A rate carried ``lever_s`` along by an acceleration, and its covariance: ``ω + α lever`` and
+    ``C_ω + C_α lever²`` (the numpy expressions' operations, element by element; the tracker's propagation and
+    motion state).
+
+    Parameters
+    ----------
+    omega : ndarray, shape (3,)
+        Rate, rad/s.
+    cov_omega : ndarray, shape (3, 3)
+        Its covariance, (rad/s)².
+    alpha : ndarray, shape (3,)
+        Angular acceleration, rad/s².
+    cov_alpha : ndarray, shape (3, 3)
+        Its covariance, (rad/s²)².
+    lever_s : float
+        Time carried over, s.
+    lever2_s2 : float
+        ``lever_s ** 2`` as the caller computes it, s².
+
+    Returns
+    -------
+    omega_at : ndarray, shape (3,)
+        rad/s.
+    cov_at : ndarray, shape (3, 3)
+        (rad/s)².
+    """
+    w = np.empty(3)
+    for i in range(3):
+        w[i] = omega[i] + alpha[i] * lever_s
+    cov = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            cov[i, j] = cov_omega[i, j] + cov_alpha[i, j] * lever2_s2
+    return w, cov
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

@@ -486,7 +486,7 @@ class StarTracker:
         # the motion state holds (3, 3) float64 covariances: the kernel of prediction_sigma_px directly
         sigma = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, st.cov_omega,
                                                   self._cov_alpha_total(st), float(horizon), self._f_px, self._rho_max_px)
-        w_cam = self._r_body_to_cam @ w
+        w_cam = np.dot(self._r_body_to_cam, w)  # BLAS gemv like @, without the matmul ufunc machinery
         travel_px = math.hypot(w_cam[0], w_cam[1]) * period * self._f_px
         value = (n_rate, sigma, travel_px)
         self._motion_cache = (st, period, self._last_exp_centre, value)
@@ -718,7 +718,7 @@ class StarTracker:
         if len(t_exp) > 1:
             # Spots of one star one exposure apart must be well separated against the prediction error,
             # or the whole frame may match one exposure off (3/4 of the exposure plan's margin).
-            w_cam = self._r_body_to_cam @ omega
+            w_cam = np.dot(self._r_body_to_cam, omega)  # BLAS gemv like @, without the matmul ufunc machinery
             tl = t_exp.tolist()  # the smallest exposure spacing on Python floats (the same differences, exactly)
             spacing_px = math.hypot(w_cam[0], w_cam[1]) * min([b - a for a, b in zip(tl, tl[1:])]) * self._f_px
             if spacing_px < 1.5 * self.shift_k_sigma * sig_pred:

@@ -84,6 +84,8 @@ __all__ = [
 ]
 
 RESTART_AFTER_REJECTED_FRAMES = 3
+# no second look at the gyro jump test (StarTrackerUnit._monitor_gyro_jump): an empty design
+_NO_JUMP_DESIGN = (np.zeros((0, 0)), np.zeros(0), 0)
 RESTART_BIAS_SIGMA_RAD_S = float(np.radians(1.0))
 
 
@@ -130,6 +132,7 @@ VERDICT_CHI2_3 = chi2_3_threshold(VERDICT_FALSE_ALARM_P)
 # the true rate is unknown beyond the reading, up to the agility of the vehicles the unit serves (20 °/s slews,
 # margin included); the filter adds its square, as an angle random walk (rad²/s), to the attitude process noise.
 SATURATED_RATE_SIGMA_RAD_S = float(np.radians(30.0))
+_SATURATED_RATE_VAR_RAD2_S2 = SATURATED_RATE_SIGMA_RAD_S**2
 # The estimate is flagged valid only while its largest 1σ is within this: beyond it, it is no attitude to steer by.
 ESTIMATE_VALID_SIGMA_RAD = float(np.radians(1.0))
 # Longest a sample may take to reach the filter (processing delay); gyro intervals older than this are folded in.
@@ -187,8 +190,40 @@ def sample_nis_threshold(n_samples: int) -> float:
     return chi2_3_threshold(MONITOR_FALSE_ALARM_P / n_samples)
 
 
+def sum_pairwise(values) -> float:
+    """The sum of a short sequence of floats (at most 128) with numpy's own summation (``ndarray.sum`` of float64):
+    below 8 terms one after the other, else eight running sums added pairwise, then the rest one by one. The same
+    float as ``np.array(values).sum()``, without building the array (the monitor's window of 10 each delivery)."""
+    n = len(values)
+    if n < 8:
+        res = 0.0
+        for v in values:
+            res += v
+        return res
+    r0, r1, r2, r3, r4, r5, r6, r7 = values[:8]
+    i = 8
+    n8 = n - n % 8
+    while i < n8:
+        r0 += values[i]
+        r1 += values[i + 1]
+        r2 += values[i + 2]
+        r3 += values[i + 3]
+        r4 += values[i + 4]
+        r5 += values[i + 5]
+        r6 += values[i + 6]
+        r7 += values[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += values[i]
+        i += 1
+    return res
+
+
+@functools.lru_cache(maxsize=1024)
 def _chi2_quantile_wilson_hilferty(dof: float, z: float) -> float:
-    """χ²(dof) quantile at the standard-normal quantile ``z`` (Wilson-Hilferty; within 1 % for dof >= 3 here)."""
+    """χ²(dof) quantile at the standard-normal quantile ``z`` (Wilson-Hilferty; within 1 % for dof >= 3 here); the
+    monitors ask for a few dof (whole numbers of samples) over and over: kept."""
     c = 2.0 / (9.0 * dof)
     return dof * (1.0 - c + z * math.sqrt(c)) ** 3
 
@@ -583,11 +618,14 @@ class StarTrackerUnit:
         self.tracker = self.trackers[0]
         self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
         self.gyro_period_s = 1.0 / config.gyro_rate_hz
+        # the saturation monitor's per-configuration arguments: the gyro's range, whether its readings are noisy
+        self._saturation_args = (float(self.gyro_spec.max_rate_rad_s), self.gyro_spec.arw_rad_sqrt_s > 0.0)
         self._plans: dict[tuple, ExposurePlan] = {}
         # gyro jump monitor: the noise of one reading (the white noise of the sample average, plus the model floor)
         self._jump_sigma_rad_s = math.hypot(self.gyro_spec.arw_rad_sqrt_s * math.sqrt(config.gyro_rate_hz),
                                             GYRO_JUMP_MODEL_SIGMA_RAD_S)
         self._jump_designs: dict[tuple, tuple] = {}
+        self._jump_sigma2 = self._jump_sigma_rad_s**2
         g = int(round(config.frame_period_s * config.gyro_rate_hz))
         self._allowance_span = g
         self.bias_allowance_rad_s = self._bias_allowance(g)
@@ -618,8 +656,9 @@ class StarTrackerUnit:
                          np.zeros((MONITOR_DELIVERIES, 3, 3)))
         self._monitor_slot = 0
         self._monitor_filled = 0
-        self._timing = np.zeros(MONITOR_DELIVERIES)  # each delivery's timing statistic (χ²(1) each, 0: none)
-        self._timing_n = np.zeros(MONITOR_DELIVERIES)
+        # each delivery's timing statistic (χ²(1) each, 0: none) and whether it has one (1.0) or not (0.0), Python floats
+        self._timing = [0.0] * MONITOR_DELIVERIES
+        self._timing_n = [0.0] * MONITOR_DELIVERIES
         self._timing_last = (0.0, 0.0)  # the last delivery's timing statistic (see _timing_statistic)
         self._inconsistent = False
         self._timing_suspect = False
@@ -643,6 +682,7 @@ class StarTrackerUnit:
         self._correction_before_jump = None  # the correction before a step found in the last span
         self._frame_latency_ms = 0.0
         self._frame_wall_ms = 0.0
+        self._cov_cache = None  # (P, key, covariance) of the last _protected_cov
 
     @property
     def ekf(self) -> AttitudeEKF | None:
@@ -738,8 +778,9 @@ class StarTrackerUnit:
         opens by ``(|δ̂| + 3 σ_δ)²`` per axis for the correction's error; the estimate is flagged invalid until a
         sample exposed after the step is accepted. The fault's end, a step back, is found and undone the same way."""
         self._correction_before_jump = None
-        if self._gyro_correction.any():
-            omega_meas = omega_meas - self._gyro_correction
+        c = self._gyro_correction
+        if c[0] or c[1] or c[2]:  # ndarray.any() of three floats (NaN counts), without its dispatch
+            omega_meas = omega_meas - c
         if len(omega_meas) != self._allowance_span:  # spans as long as the env's control period
             self._allowance_span = len(omega_meas)
             self.bias_allowance_rad_s = self._bias_allowance(self._allowance_span)
@@ -749,17 +790,24 @@ class StarTrackerUnit:
         self._gyro_prev, self._gyro_prev_saturated, self._gyro_prev_times = omega_meas, saturated, times
         if saturated or prev_saturated or (len(prev) == 0 and len(omega_meas) < 3):
             return omega_meas  # a clipped reading is the saturation monitor's; too few readings for a line and a step
-        y = np.concatenate([prev, omega_meas]) if len(prev) else omega_meas
-        m, den, first = self._jump_design(len(prev), len(omega_meas))
+        n_prev, n_cur = len(prev), len(omega_meas)
+        m, den, first = self._jump_design(n_prev, n_cur)
+        # the second look (this span's readings after the previous span's) when the first finds nothing: one call
+        if GYRO_JUMP_SECOND_LOOK and len(prev2) >= 2 and n_prev >= 2 and not prev2_saturated:
+            m2, den2, first2 = self._jump_design(len(prev2), n_prev, n_cur)
+        else:
+            m2, den2, first2 = _NO_JUMP_DESIGN
         delta = np.zeros(3)
-        sigma2 = self._jump_sigma_rad_s**2
-        t_max, j = filter_kernels.gyro_jump_statistic(np.ascontiguousarray(y, dtype=np.float64), m, den, first,
-                                                      sigma2, delta)
-        if j < 0 or t_max <= GYRO_JUMP_CHI2_3:
-            if GYRO_JUMP_SECOND_LOOK and len(prev2) >= 2 and len(prev) >= 2 and not prev2_saturated:
-                return self._second_look(prev2, prev, prev_times, omega_meas)
+        sigma2 = self._jump_sigma2
+        look, j = filter_kernels.gyro_jump_looks(
+            np.ascontiguousarray(prev2, dtype=np.float64), np.ascontiguousarray(prev, dtype=np.float64),
+            np.ascontiguousarray(omega_meas, dtype=np.float64), m, den, first, m2, den2, first2, sigma2,
+            GYRO_JUMP_CHI2_3, delta)
+        if look == 0:
             return omega_meas
-        g = j - len(prev)
+        if look == 2:
+            return self._second_look(prev2, prev, prev_times, omega_meas, j, delta, den2)
+        g = j - n_prev
         self._gyro_jumps += 1
         self._t_gyro_jump = float(times[g])  # reading g covers (times[g], times[g + 1]]
         self._correction_before_jump = self._gyro_correction
@@ -776,8 +824,11 @@ class StarTrackerUnit:
             self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
         return omega_meas
 
-    def _second_look(self, prev2, prev, prev_times, omega_meas) -> np.ndarray:
-        """The jump test of the previous span's readings again, now with this span's readings after them.
+    def _second_look(self, prev2, prev, prev_times, omega_meas, j: int, delta: np.ndarray,
+                     den: np.ndarray) -> np.ndarray:
+        """A step the jump test found in the previous span's readings tested again, now with this span's readings
+        after them (:func:`startracker.kernels.filter.gyro_jump_looks`: reading ``j`` of the three spans' window, its
+        estimate ``delta`` (3,) rad/s and the window's ``den``); this span's readings corrected.
 
         A step tested in its own span has few readings after it when it falls late there (σ_δ up to 1.3 σ of one
         reading); one span later it has a whole span more, and the test over the three spans (offset, slope and a
@@ -785,14 +836,8 @@ class StarTrackerUnit:
         span's readings and the buffered ones from the step on are corrected by δ̂ (the filter's own intervals
         before that it has integrated: its attitude covariance opens by that drift), the bias covariance opens as
         for a step found at once, and the estimate is invalid until a sample fused after now is accepted."""
-        n2, n1, n0 = len(prev2), len(prev), len(omega_meas)
-        m, den, first = self._jump_design(n2, n1, n0)
-        y = np.ascontiguousarray(np.concatenate([prev2, prev, omega_meas]), dtype=np.float64)
-        delta = np.zeros(3)
-        sigma2 = self._jump_sigma_rad_s**2
-        t_max, j = filter_kernels.gyro_jump_statistic(y, m, den, first, sigma2, delta)
-        if j < 0 or t_max <= GYRO_JUMP_CHI2_3:
-            return omega_meas
+        n2 = len(prev2)
+        sigma2 = self._jump_sigma2
         g = j - n2  # reading g of the previous span covers (prev_times[g], prev_times[g + 1]]
         t_step = float(prev_times[g])
         self._gyro_jumps += 1
@@ -833,9 +878,10 @@ class StarTrackerUnit:
         user hands in may well repeat). Its true rate is unknown beyond the reading:
         :data:`SATURATED_RATE_SIGMA_RAD_S`, squared, enters the attitude process noise."""
         out = np.empty((len(omega_meas), 3))
+        limit, noisy = self._saturation_args
         last = filter_kernels.saturated_rate_noise(
-            np.ascontiguousarray(omega_meas, dtype=np.float64), self._omega_gyro, float(self.gyro_spec.max_rate_rad_s),
-            own_gyro and self.gyro_spec.arw_rad_sqrt_s > 0.0, SATURATED_RATE_SIGMA_RAD_S**2, out)
+            np.ascontiguousarray(omega_meas, dtype=np.float64), self._omega_gyro, limit, own_gyro and noisy,
+            _SATURATED_RATE_VAR_RAD2_S2, out)
         return (None, -1) if last < 0 else (out, last)
 
     # ------------------------------------------------------------------ one span of truth
@@ -982,7 +1028,15 @@ class StarTrackerUnit:
 
     def _protected_cov(self, P, t_s: float) -> np.ndarray:
         """The estimate's reported attitude covariance (3, 3), rad²: the filter's, plus the drift of a gyro bias change
-        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`)."""
+        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`).
+
+        Read only: kept for the next call on the same ``P`` (the filter's estimate now, which is recomputed into a new
+        array whenever it changes), time, last accepted sample and allowance (the verdict and :meth:`estimate` of
+        one span ask for it both)."""
+        key = (t_s, self._t_accepted, self.bias_allowance_rad_s)
+        hit = self._cov_cache
+        if hit is not None and hit[0] is P and hit[1] == key:
+            return hit[2]
         cov = P[:3, :3].copy()
         dt = t_s - self._t_accepted
         if dt > 0.0:
@@ -990,6 +1044,7 @@ class StarTrackerUnit:
             cov[0, 0] += extra
             cov[1, 1] += extra
             cov[2, 2] += extra
+        self._cov_cache = (P, key, cov)
         return cov
 
     def _estimate_valid(self, P) -> bool:
@@ -1013,10 +1068,11 @@ class StarTrackerUnit:
             _, tm, qm, cm, wrong = due[0]
         else:
             tm, qm, cm, wrong = (np.concatenate([d[i] for d in due]) for i in range(1, 5))
-        if len(tm) > 1 and (tm[1:] < tm[:-1]).any():  # several heads: merge into time order (stable)
+        # unit rows (np.linalg.norm(qm, axis=1)'s arithmetic) and the order test in one compiled call
+        qm, in_order = filter_kernels.delivery_rows(qm, tm)
+        if not in_order:  # several heads: merge into time order (stable)
             order = np.argsort(tm, kind="stable")
             tm, qm, cm, wrong = tm[order], qm[order], cm[order], wrong[order]
-        qm = qm / rk.vector_norm(qm)[:, None]  # np.linalg.norm(qm, axis=1)'s arithmetic, without its dispatch
         accepted = np.zeros(len(tm), dtype=bool)
         first = 0
         if self.fusion.ekf is None:  # the first fix starts the filter
@@ -1039,23 +1095,19 @@ class StarTrackerUnit:
             # the frame's timestamps disagree with the gyro along the rate: fused, it would drag the estimate
             # (and the bias) by ω δt; it is refused and the estimate is invalid until the timing is quiet again
             self._timing_suspect = True
-            self._timing[:] = 0.0
-            self._timing_n[:] = 0.0
+            self._timing = [0.0] * MONITOR_DELIVERIES
+            self._timing_n = [0.0] * MONITOR_DELIVERIES
             self._monitor_filled = 0
             self._timing_alarms += 1
             self.fusion.last_innovation_rad = np.zeros((0, 3))
         else:
             accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
-        any_accepted = bool(accepted.any())
+        last_accepted, n_wrong, n_confident = filter_kernels.delivery_counts(accepted, wrong)
+        any_accepted = last_accepted >= 0
         if any_accepted:
-            self._t_accepted = max(self._t_accepted, float(tm[accepted][-1]))
+            self._t_accepted = max(self._t_accepted, float(tm[last_accepted]))
             # a loose fix waits for CONFIRM_DELIVERIES later frames the timing test could check
             self._unconfirmed = CONFIRM_DELIVERIES if loose else max(self._unconfirmed - 1, 0)
-        if wrong.any():
-            n_wrong = int(np.count_nonzero(wrong))
-            n_confident = int(np.count_nonzero(wrong & accepted))
-        else:
-            n_wrong = n_confident = 0
         self._n_wrong += n_wrong
         self._n_confidently_wrong += n_confident
         stats["n_wrong_samples"] += n_wrong
@@ -1101,8 +1153,8 @@ class StarTrackerUnit:
             self._monitor_slot)
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
-        n_timing = float(self._timing_n.sum())  # ndarray.sum: np.sum's summation without its dispatch
-        timing_alarm = n_timing > 0 and float(self._timing.sum()) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
+        n_timing = sum_pairwise(self._timing_n)  # ndarray.sum's arithmetic on the window's Python floats
+        timing_alarm = n_timing > 0 and sum_pairwise(self._timing) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
         # its samples' own NIS
         sample_alarm = MONITOR_SAMPLE_NIS and n_nis > 0 and max_nis > sample_nis_threshold(int(n_nis))
@@ -1116,8 +1168,8 @@ class StarTrackerUnit:
             fusion.start(ekf)  # its state changed: the estimate now is recomputed
             for a in ring:
                 a[:] = 0.0
-            self._timing[:] = 0.0
-            self._timing_n[:] = 0.0
+            self._timing = [0.0] * MONITOR_DELIVERIES
+            self._timing_n = [0.0] * MONITOR_DELIVERIES
             self._monitor_filled = 0
             self._inconsistent = True
             self._timing_suspect = self._timing_suspect or timing_alarm
@@ -1129,7 +1181,7 @@ class StarTrackerUnit:
         # one (its timing sum below χ²(n)'s median), not merely none strong enough to alarm again.
         if self._timing_suspect and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES and (
                 n_timing == 0
-                or float(self._timing.sum()) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
+                or sum_pairwise(self._timing) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
             self._timing_suspect = False
 
     def _rate_matters(self) -> bool:
@@ -1366,7 +1418,7 @@ class StarTrackerUnit:
         if self.fusion.ekf is None:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
         q, _, P, omega, t_s = self.fusion.current()
-        cov = self._protected_cov(P, t_s)
+        cov = self._protected_cov(P, t_s).copy()
         sig = math.sqrt(max(cov[0, 0], cov[1, 1], cov[2, 2]))
         return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(cov), cov)
 

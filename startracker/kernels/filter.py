@@ -16,7 +16,10 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
 - :func:`innovation_window`: the innovation monitor's statistics (spread and mean of the innovations over the
   window, the newest delivery's mean and its largest NIS);
 - :func:`timing_statistic`: the timing test of a delivery along the body rate, before it is fused;
-- :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped).
+- :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped), and
+  :func:`gyro_jump_looks`: its two looks of a span (its own window, then the previous span's again) in one call;
+- :func:`delivery_rows` / :func:`delivery_counts`: a delivery's samples made unit (and whether they are in time
+  order), and its tallies after fusion (the last accepted sample, wrong and confidently wrong samples).
 
 The module is over 600 lines because it is one room: what the onboard filter computes, the fusion of a frame and
 the statistics of the monitors that judge its inputs (innovations, saturated readings, gyro steps), compiled
@@ -31,7 +34,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
-           "innovation_window", "timing_statistic", "saturated_rate_noise", "gyro_jump_statistic"]
+           "innovation_window", "timing_statistic", "saturated_rate_noise", "gyro_jump_statistic", "gyro_jump_looks",
+           "delivery_rows", "delivery_counts"]
 
 
 @njit(cache=True)
@@ -732,3 +736,130 @@ def gyro_jump_statistic(y, m, den, first, sigma2, delta_out):
             delta_out[1] = s1 / d
             delta_out[2] = s2 / d
     return t_max, j_max
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def delivery_rows(qm, tm):
+    """A delivery's attitudes made unit, and whether its instants are in time order.
+
+    Each row is divided by its norm ``√(((q₀² + q₁²) + q₂²) + q₃²)``, numpy's ``q / norm(q, axis=1)[:, None]``
+    arithmetic (the same operations in the same order), so the rows are its own bit for bit.
+
+    Parameters
+    ----------
+    qm : ndarray, shape (M, 4)
+        Attitude samples (w, x, y, z), non-zero.
+    tm : ndarray, shape (M,)
+        Their instants, s.
+
+    Returns
+    -------
+    q_unit : ndarray, shape (M, 4)
+        ``qm`` row by row over its norm (a new array).
+    in_order : bool
+        Whether ``tm`` is non-decreasing.
+    """
+    m = qm.shape[0]
+    out = np.empty((m, 4))
+    for i in range(m):
+        s = qm[i, 0] * qm[i, 0] + qm[i, 1] * qm[i, 1]
+        s = s + qm[i, 2] * qm[i, 2]
+        s = s + qm[i, 3] * qm[i, 3]
+        n = math.sqrt(s)
+        for c in range(4):
+            out[i, c] = qm[i, c] / n
+    in_order = True
+    for i in range(1, tm.shape[0]):
+        if tm[i] < tm[i - 1]:
+            in_order = False
+            break
+    return out, in_order
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def delivery_counts(accepted, wrong):
+    """A fused delivery's tallies: its last accepted sample, its wrong and its confidently wrong samples.
+
+    Parameters
+    ----------
+    accepted : ndarray of bool, shape (M,)
+        Which samples the filter accepted.
+    wrong : ndarray of bool, shape (M,)
+        Which samples the verdict found wrong.
+
+    Returns
+    -------
+    last_accepted : int
+        Index of the last accepted sample (-1 when none was).
+    n_wrong : int
+        Wrong samples.
+    n_confidently_wrong : int
+        Wrong samples the filter accepted.
+    """
+    last = -1
+    n_wrong = 0
+    n_confident = 0
+    for i in range(accepted.shape[0]):
+        if accepted[i]:
+            last = i
+        if wrong[i]:
+            n_wrong += 1
+            if accepted[i]:
+                n_confident += 1
+    return last, n_wrong, n_confident
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def gyro_jump_looks(prev2, prev, cur, m1, den1, first1, m2, den2, first2, sigma2, chi2_max, delta_out):
+    """The gyro jump monitor's two looks of a span, in one call: :func:`gyro_jump_statistic` over the previous and
+    this span's readings; when it finds no step beyond ``chi2_max``, over the span before, the previous and this one
+    (the second look at the previous span), unless ``m2`` is empty.
+
+    Parameters
+    ----------
+    prev2, prev, cur : ndarray, shape (n2, 3), (n1, 3), (n0, 3)
+        Readings of the span before the previous one, the previous one and this one, rad/s.
+    m1, den1, first1 : ndarray (n1 + n0, n1 + n0), ndarray (n1 + n0,), int
+        The first look's design (see :func:`gyro_jump_statistic`).
+    m2, den2, first2 : ndarray (n2 + n1 + n0, n2 + n1 + n0), ndarray (n2 + n1 + n0,), int
+        The second look's design; ``m2`` of shape (0, 0): no second look.
+    sigma2 : float
+        Per-axis variance of one reading's noise, (rad/s)².
+    chi2_max : float
+        A look finds a step when its largest statistic is not below or at this (NaN finds one).
+    delta_out : ndarray, shape (3,)
+        Output: the step's estimate of the look that found it, rad/s.
+
+    Returns
+    -------
+    look : int
+        1: the first look found a step, 2: the second, 0: none.
+    j : int
+        The step's reading in that look's window (the last look's best candidate when none found one, -1 for none).
+    """
+    n2, n1, n0 = prev2.shape[0], prev.shape[0], cur.shape[0]
+    y = np.empty((n1 + n0, 3))
+    for g in range(n1):
+        for a in range(3):
+            y[g, a] = prev[g, a]
+    for g in range(n0):
+        for a in range(3):
+            y[n1 + g, a] = cur[g, a]
+    t_max, j = gyro_jump_statistic(y, m1, den1, first1, sigma2, delta_out)
+    if j >= 0 and not t_max <= chi2_max:
+        return 1, j
+    if m2.shape[0] == 0:
+        return 0, j
+    y2 = np.empty((n2 + n1 + n0, 3))
+    for g in range(n2):
+        for a in range(3):
+            y2[g, a] = prev2[g, a]
+    for g in range(n1 + n0):
+        for a in range(3):
+            y2[n2 + g, a] = y[g, a]
+    d2 = np.zeros(3)
+    t_max, j = gyro_jump_statistic(y2, m2, den2, first2, sigma2, d2)
+    if j >= 0 and not t_max <= chi2_max:
+        delta_out[0], delta_out[1], delta_out[2] = d2[0], d2[1], d2[2]
+        return 2, j
+    return 0, j

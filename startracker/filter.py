@@ -417,8 +417,12 @@ class AttitudeEKF:
         # one memory layout for the kernel (broadcast or strided inputs would each compile a variant)
         return self._fuse(*(np.ascontiguousarray(a) for a in (wg, tg, qm, tm, rs)), rate_noise_rad2_s)
 
-    def _fuse(self, wg, tg, qm, tm, rs, rate_noise=None) -> np.ndarray:
-        """The work of :meth:`process` on checked inputs: one :func:`~startracker.kernels.filter.fuse_frame` call."""
+    def _fuse(self, wg, tg, qm, tm, rs, rate_noise=None, timing=None):
+        """The work of :meth:`process` on checked inputs: one :func:`~startracker.kernels.filter.fuse_frame` call.
+
+        With ``timing`` (``u`` (3,), threshold, loose ratio; M >= 1): behind the delivery's timing test, one
+        :func:`~startracker.kernels.filter.fuse_frame_timed` call; returns ``(statistic, loose, accepted)``, with
+        ``accepted`` None and the filter unchanged when the test failed."""
         m = len(qm)
         # the kernel works in place on fresh float64 copies (no caller's array changes behind its back)
         q = np.array(self.q_body_to_icrs, dtype=np.float64)
@@ -431,11 +435,20 @@ class AttitudeEKF:
         phi = np.empty((6, 6))
         qd = np.empty((6, 6))
         z = np.empty(3)
-        t, n_acc, n_prop = kf.fuse_frame(
-            q, b, P, float(self.t_s), wg, tg, qm, tm, rs, self.sigma_v, self.sigma_u,
-            math.inf if self.gate_chi2 is None else self.gate_chi2, accepted, phi, qd, z,
-            np.zeros((len(tg), 3)) if rate_noise is None else rate_noise, nis, zs, ss,
-        )
+        if timing is None:
+            t, n_acc, n_prop = kf.fuse_frame(
+                q, b, P, float(self.t_s), wg, tg, qm, tm, rs, self.sigma_v, self.sigma_u,
+                math.inf if self.gate_chi2 is None else self.gate_chi2, accepted, phi, qd, z,
+                np.zeros((len(tg), 3)) if rate_noise is None else rate_noise, nis, zs, ss,
+            )
+        else:
+            stat, loose, fused, t, n_acc, n_prop = kf.fuse_frame_timed(
+                q, b, P, float(self.t_s), wg, tg, qm, tm, rs, self.sigma_v, self.sigma_u,
+                math.inf if self.gate_chi2 is None else self.gate_chi2, accepted, phi, qd, z,
+                np.zeros((len(tg), 3)) if rate_noise is None else rate_noise, nis, zs, ss, *timing,
+            )
+            if not fused:
+                return stat, loose, None
         self.last_nis, self.last_innovation_rad, self.last_innovation_cov_rad2 = nis, zs, ss
         self.n_updates += n_acc
         self.n_rejected += m - n_acc
@@ -450,7 +463,7 @@ class AttitudeEKF:
             self.ekf.F, self.ekf.Q = phi, qd
         if m:
             self.ekf.y, self.ekf.R = z.reshape(-1, 1), rs[-1]
-        return accepted
+        return accepted if timing is None else (stat, loose, accepted)
 
     def __repr__(self) -> str:
         sig = np.degrees(self.attitude_sigma_rad) * 3600.0
@@ -634,6 +647,54 @@ class DelayedFusion:
         self._keep_from(j if self._tg[j] > t_last else j + 1)
         self._now = None
         return accepted
+
+    def fuse_timed(self, q_meas_body_to_icrs, t_meas_s, covariance_rad2, rate_axis, timing_chi2_max: float,
+                   loose_ratio: float):
+        """A delivery's timing test against the prediction, then, when it passes, its :meth:`fuse`: the test of
+        :func:`startracker.kernels.filter.timing_statistic` on :meth:`prior_innovations` along the body rate, and the
+        fusion, in one compiled call when the buffer reaches the samples (:func:`~startracker.kernels.filter.fuse_frame_timed`).
+
+        Parameters
+        ----------
+        q_meas_body_to_icrs, t_meas_s, covariance_rad2 :
+            As :meth:`fuse` (M >= 1), none before the filter's time.
+        rate_axis : ndarray, shape (3,)
+            Unit vector of the body rate (body frame).
+        timing_chi2_max : float
+            Above this statistic the samples are not fused.
+        loose_ratio : float
+            The prediction is loose beyond this many times the smallest sample variance along the rate
+            (:func:`~startracker.kernels.filter.timing_statistic`).
+
+        Returns
+        -------
+        statistic : float
+            The timing statistic, χ²(1) without a timing error.
+        loose : bool
+        accepted : ndarray of bool, shape (M,), or None
+            As :meth:`fuse`; None when the test failed (the filter is unchanged).
+        """
+        ekf = self.ekf
+        if ekf is not None and len(t_meas_s) and t_meas_s[0] >= ekf.t_s:
+            t_last = float(t_meas_s[-1])
+            wg, tg, rn, j = self._intervals_to(t_last)
+            if wg is not None:  # the usual case: one compiled call, then fuse's bookkeeping
+                stat, loose, acc = ekf._fuse(wg, tg, q_meas_body_to_icrs, t_meas_s, covariance_rad2, rn,
+                                             timing=(rate_axis, timing_chi2_max, loose_ratio))
+                if acc is None:
+                    return stat, bool(loose), None
+                self.last_nis = ekf.last_nis
+                self.last_innovation_rad = ekf.last_innovation_rad
+                self.last_innovation_cov_rad2 = ekf.last_innovation_cov_rad2
+                self._keep_from(j if self._tg[j] > t_last else j + 1)
+                self._now = None
+                return stat, bool(loose), acc
+        # the others: the test, then the fusion, apart
+        z, s = self.prior_innovations(q_meas_body_to_icrs, t_meas_s, covariance_rad2)
+        stat, loose = kf.timing_statistic(rate_axis, z, s, covariance_rad2, loose_ratio)
+        if stat > timing_chi2_max:
+            return stat, bool(loose), None
+        return stat, bool(loose), self.fuse(q_meas_body_to_icrs, t_meas_s, covariance_rad2)
 
     def prior_innovations(self, q_meas_body_to_icrs, t_meas_s, covariance_rad2):
         """Each sample's innovation against the filter's prediction at its instant, with no update in between (the

@@ -1084,9 +1084,16 @@ class StarTrackerUnit:
         # a fix the timing test cannot vouch for: the filter's first, or one over a loose prediction (a gap)
         loose = first == 1 and self._rate_matters()
         t_filter = self.fusion.ekf.t_s
+        fused = None
         if first == 0 and float(tm[-1]) >= t_filter:  # tm is in time order: some samples are fresh
             if float(tm[0]) >= t_filter:  # all (the usual case): no masked copies
-                stat, has, loose = self._timing_statistic(qm, tm, cm)
+                u = self._rate_axis()
+                if u is None:  # too slow a rate for a timestamp to matter: no test
+                    stat, has, loose = 0.0, 0.0, False
+                else:  # the test and, when it passes, the fusion, in one call
+                    stat, loose, fused = self.fusion.fuse_timed(qm, tm, cm, u, MONITOR_TIMING_CHI2_1,
+                                                                TIMING_LOOSE_PRIOR_RATIO)
+                    has = 1.0
             else:
                 fresh = tm >= t_filter
                 stat, has, loose = self._timing_statistic(qm[fresh], tm[fresh], cm[fresh])
@@ -1100,6 +1107,8 @@ class StarTrackerUnit:
             self._monitor_filled = 0
             self._timing_alarms += 1
             self.fusion.last_innovation_rad = np.zeros((0, 3))
+        elif fused is not None:
+            accepted = fused
         else:
             accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
         last_accepted, n_wrong, n_confident = filter_kernels.delivery_counts(accepted, wrong)
@@ -1203,14 +1212,20 @@ class StarTrackerUnit:
         :data:`TIMING_LOOSE_PRIOR_RATIO` times the smallest ``r_i``, the test can pass a timing error of
         ``√(χ² (p + 1 / Σ 1 / r_i))``, most of which the fused estimate would take: the fix must be confirmed by later
         frames (:data:`CONFIRM_DELIVERIES`)."""
-        ekf = self.fusion.ekf
-        w = ekf.omega_body
-        w_norm = math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
-        if w_norm < TIMING_MIN_RATE_RAD_S or len(tm) == 0:
+        u = self._rate_axis()
+        if u is None or len(tm) == 0:
             return 0.0, 0.0, False
         z, s = self.fusion.prior_innovations(qm, tm, cm)
-        stat, loose = filter_kernels.timing_statistic(w / w_norm, z, s, cm, TIMING_LOOSE_PRIOR_RATIO)
+        stat, loose = filter_kernels.timing_statistic(u, z, s, cm, TIMING_LOOSE_PRIOR_RATIO)
         return stat, 1.0, bool(loose)
+
+    def _rate_axis(self):
+        """The filter's body-rate direction (3,), for the timing test; None below :data:`TIMING_MIN_RATE_RAD_S`."""
+        w = self.fusion.ekf.omega_body
+        w_norm = math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
+        if w_norm < TIMING_MIN_RATE_RAD_S:
+            return None
+        return w / w_norm
 
     @property
     def n_wrong_samples_total(self) -> int:

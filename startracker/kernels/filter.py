@@ -15,7 +15,8 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
 - :func:`saturated_rate_noise`: which gyro readings are saturated, and the process noise they get;
 - :func:`innovation_window`: the innovation monitor's statistics (spread and mean of the innovations over the
   window, the newest delivery's mean and its largest NIS);
-- :func:`timing_statistic`: the timing test of a delivery along the body rate, before it is fused;
+- :func:`timing_statistic`: the timing test of a delivery along the body rate, before it is fused, and
+  :func:`fuse_frame_timed`: the test against the prediction, then the fusion when it passes, in one call;
 - :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped), and
   :func:`gyro_jump_looks`: its two looks of a span (its own window, then the previous span's again) in one call;
 - :func:`delivery_rows` / :func:`delivery_counts`: a delivery's samples made unit (and whether they are in time
@@ -34,8 +35,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
-           "innovation_window", "timing_statistic", "saturated_rate_noise", "gyro_jump_statistic", "gyro_jump_looks",
-           "delivery_rows", "delivery_counts"]
+           "innovation_window", "timing_statistic", "fuse_frame_timed", "saturated_rate_noise", "gyro_jump_statistic",
+           "gyro_jump_looks", "delivery_rows", "delivery_counts"]
 
 
 @njit(cache=True)
@@ -863,3 +864,51 @@ def gyro_jump_looks(prev2, prev, cur, m1, den1, first1, m2, den2, first2, sigma2
         delta_out[0], delta_out[1], delta_out[2] = d2[0], d2[1], d2[2]
         return 2, j
     return 0, j
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def fuse_frame_timed(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last,
+                     rate_noise, nis_out, z_out, s_out, u, timing_chi2_max, loose_ratio):
+    """A delivery's timing test, then its fusion when the test passes: one call for the two.
+
+    First each sample's innovation against the prediction with no update in between (:func:`fuse_frame` on copies
+    of ``q``, ``b``, ``P`` with a gate below every NIS) and their :func:`timing_statistic` along ``u``; then, unless
+    the statistic is above ``timing_chi2_max``, :func:`fuse_frame` of the samples on ``q``, ``b``, ``P`` in place.
+    The same operations as the three calls one after the other.
+
+    Parameters
+    ----------
+    q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last, rate_noise, nis_out, z_out, s_out :
+        As :func:`fuse_frame` (M >= 1); left unchanged when the test fails.
+    u : ndarray, shape (3,)
+        Unit vector of the body rate (body frame).
+    timing_chi2_max : float
+        The timing test's threshold: above it the delivery is not fused.
+    loose_ratio : float
+        As :func:`timing_statistic`.
+
+    Returns
+    -------
+    statistic : float
+        The timing statistic (χ²(1) without a timing error).
+    loose : bool
+        Whether the prediction was too loose for the test to vouch for the delivery.
+    fused : bool
+        Whether the samples were fused (the statistic was not above ``timing_chi2_max``).
+    t_end : float
+        As :func:`fuse_frame` (``t_s`` when not fused).
+    n_accepted, n_propagations : int
+        As :func:`fuse_frame` (0 when not fused).
+    """
+    m = qm.shape[0]
+    z = np.empty((m, 3))
+    s = np.empty((m, 3, 3))
+    fuse_frame(q.copy(), b.copy(), P.copy(), t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, -1.0,
+               np.empty(m, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3), rate_noise, np.empty(m),
+               z, s)
+    stat, loose = timing_statistic(u, z, s, rs, loose_ratio)
+    if stat > timing_chi2_max:
+        return stat, loose, False, t_s, 0, 0
+    t, n_acc, n_prop = fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd,
+                                  z_last, rate_noise, nis_out, z_out, s_out)
+    return stat, loose, True, t, n_acc, n_prop

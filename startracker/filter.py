@@ -57,6 +57,7 @@ _H = np.hstack([np.eye(3), np.zeros((3, 3))])
 # DelayedFusion's innovations when it has none (shared, empty: nothing to write into)
 _NO_INNOVATIONS = np.zeros((0, 3))
 _NO_INNOVATION_COVS = np.zeros((0, 3, 3))
+_NO_RATE_NOISE = np.zeros((0, 3))  # add_gyro without rate noise (kernels.filter.append_intervals appends zeros)
 _METHODS = ("auto", "sequential")
 
 
@@ -552,10 +553,9 @@ class DelayedFusion:
         g = len(t_gyro_s)
         if g == 0:
             return
-        rn = np.zeros((g, 3)) if rate_noise_rad2_s is None else rate_noise_rad2_s
-        self._tg = np.concatenate([self._tg, t_gyro_s])
-        self._wg = np.concatenate([self._wg, omega_gyro])
-        self._rn = np.concatenate([self._rn, rn])
+        self._tg, self._wg, self._rn = kf.append_intervals(
+            self._tg, self._wg, self._rn, t_gyro_s, omega_gyro,
+            _NO_RATE_NOISE if rate_noise_rad2_s is None else rate_noise_rad2_s)
         self.t_s = float(self._tg[-1])
         self._now = None
         old = self.t_s - self.horizon_s

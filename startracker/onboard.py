@@ -917,10 +917,12 @@ class StarTrackerUnit:
         n_frames = int(round((t_end - t0) / frame_period_s))
         duration_s = n_frames * frame_period_s
         faults = self.faults
+        # the env's own history (float64, C-contiguous): the compiled calls take it as it is
+        own_history = (quats.dtype == np.float64 and quats.flags.c_contiguous and times.dtype == np.float64
+                       and times.flags.c_contiguous and quats.ndim == 2)
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
-            if (quats.dtype == np.float64 and quats.flags.c_contiguous and times.dtype == np.float64
-                    and times.flags.c_contiguous):  # the env's own history: one compiled call
+            if own_history:  # one compiled call
                 omega_avg = rk.interval_rates_rows(times, quats)
             else:
                 omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]
@@ -962,17 +964,15 @@ class StarTrackerUnit:
             frame_ends.append((len(samples), tf + frame_period_s + 1e-3 * self._frame_latency_ms))
             lat_sum += self._frame_latency_ms
             wall_sum += self._frame_wall_ms
-            last = self.last_stats
+            head_latency, head_wall, f_pm, f_gst, f_id, n_stars, exposures_per_frame, _ = self._frame_figures
+            head_samples = self._frame_head_samples
             for h in range(n_heads):
-                per_head_n[h] += self._frame_head_samples[h]
-                per_head_lat[h] += last["matching_latency_ms_per_head"][h]
-                per_head_wall[h] += last["matching_wall_clock_ms_per_head"][h]
-            bd = last["wall_clock_breakdown_ms"]
-            bd_pm += bd["predict_match"]
-            bd_gst += bd["group_solve_test"]
-            bd_id += bd["identify"]
-            n_stars = last["n_stars"]
-            exposures_per_frame = last["exposures_per_frame"]
+                per_head_n[h] += head_samples[h]
+                per_head_lat[h] += head_latency[h]
+                per_head_wall[h] += head_wall[h]
+            bd_pm += f_pm
+            bd_gst += f_gst
+            bd_id += f_id
         # distinct attitude instants: heads exposed at the same instant add samples, not updates (round half to
         # even, as np.round)
         n_instants = len({round(smp.t_s * 1e6) for smp in samples})
@@ -993,7 +993,10 @@ class StarTrackerUnit:
         if samples:  # judged against this span's truth now, counted when the filter has seen them
             t_arr, q_arr, c_arr = _sample_arrays(samples)
             t_true = t_arr - np.array(offsets) if offsets is not None else t_arr
-            wrong = _wrong_samples(t_true, q_arr, c_arr, times, quats)
+            if own_history:  # the sample arrays are fresh float64 ones (_sample_arrays): no copies
+                wrong = sensor_kernels.wrong_sample_flags(t_true, q_arr, c_arr, times, quats, VERDICT_CHI2_3)
+            else:
+                wrong = _wrong_samples(t_true, q_arr, c_arr, times, quats)
             start = 0
             for end, t_done in frame_ends:
                 if end > start:
@@ -1351,7 +1354,8 @@ class StarTrackerUnit:
         self._frame_head_samples = [0] * n_heads
         self._frame_latency_ms = self._frame_wall_ms = 0.0
         if faults and faults.frame_dropped(t_mid):
-            self.last_stats = _empty_stats(n_heads)
+            self._frame_figures = ([0.0] * n_heads, [0.0] * n_heads, 0.0, 0.0, 0.0, 0, 0, 0)
+            self._stats = None  # the frame's figures, built when asked for (last_stats)
             return []
         sun = None
         blinded = set()
@@ -1371,7 +1375,7 @@ class StarTrackerUnit:
             plan = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
             det, scene = head.detections(self.catalogs[k], truth, plan, t_frame, rng, cfg.fidelity, bodies)
-            if len(det) and (det.intensity <= 0).any():
+            if len(det) and sensor_kernels.any_nonpositive(det.intensity):
                 det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
             if faults:
                 det = faults.modify_detections(det, t_mid, rng, head.camera.resolution)
@@ -1409,7 +1413,8 @@ class StarTrackerUnit:
             n_exp = max(n_exp, int(plan.n_exposures))
             frames.append((scene, det))
         # the sensor tracks while any head tracks
-        self.tracker_mode = next((m for m in ("track", "acquire") if m in self.head_modes), "lost")
+        modes = self.head_modes
+        self.tracker_mode = "track" if "track" in modes else ("acquire" if "acquire" in modes else "lost")
         if prev_mode == "track" and self.tracker_mode != "track":
             self._lost_events += 1
             self._t_lock_lost = t_frame
@@ -1418,14 +1423,28 @@ class StarTrackerUnit:
             self._t_lock_lost = None
         if cfg.keep_images:
             self._last_frame = frames[0]
-        self._frame_latency_ms = latency_ms = sum(head_latency)
-        self._frame_wall_ms = wall_ms = sum(head_wall)
-        self.last_stats = _empty_stats(
-            n_heads, matching_latency_ms=latency_ms, matching_latency_ms_per_head=head_latency,
-            matching_wall_clock_ms=wall_ms, matching_wall_clock_ms_per_head=head_wall,
-            wall_clock_breakdown_ms=dict(predict_match=bd_pm, group_solve_test=bd_gst, identify=bd_id),
-            n_stars=n_matched, exposures_per_frame=n_exp, n_attitude_samples=len(samples))
+        self._frame_latency_ms = sum(head_latency)
+        self._frame_wall_ms = sum(head_wall)
+        self._frame_figures = (head_latency, head_wall, bd_pm, bd_gst, bd_id, n_matched, n_exp, len(samples))
+        self._stats = None  # the frame's figures, built when asked for (last_stats): observe reads them as they are
         return samples
+
+    @property
+    def last_stats(self) -> dict:
+        """Figures of the last frame (:meth:`process_frame`) or span (:meth:`observe`); see the class docstring."""
+        if self._stats is None:
+            head_latency, head_wall, bd_pm, bd_gst, bd_id, n_matched, n_exp, n_samples = self._frame_figures
+            self._stats = _empty_stats(
+                len(head_latency), matching_latency_ms=self._frame_latency_ms,
+                matching_latency_ms_per_head=head_latency, matching_wall_clock_ms=self._frame_wall_ms,
+                matching_wall_clock_ms_per_head=head_wall,
+                wall_clock_breakdown_ms=dict(predict_match=bd_pm, group_solve_test=bd_gst, identify=bd_id),
+                n_stars=n_matched, exposures_per_frame=n_exp, n_attitude_samples=n_samples)
+        return self._stats
+
+    @last_stats.setter
+    def last_stats(self, value: dict) -> None:
+        self._stats = value
 
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:

@@ -563,3 +563,24 @@ def test_gyro_jump_looks_equal_two_statistics_on_the_concatenated_windows(seed):
             assert (look, j) == ((2 if j2 >= 0 and t2 > 40.0 else 0), j2)
             if look == 2:
                 _same(delta, d2)
+
+
+def test_buffer_append_and_nonpositive_test_equal_numpy():
+    """The delayed fusion's buffer append is ``np.concatenate`` of each pair (zeros for an empty rate noise), bit for
+    bit, from an empty buffer too; the detections' test is ``(values <= 0).any()`` (NaN is not <= 0)."""
+    from startracker.kernels import filter as fk
+    from startracker.kernels import sensor as sk
+
+    rng = np.random.default_rng(7)
+    for n, g in ((0, 10), (7, 10), (12, 1)):
+        tg, wg, rn = rng.random(n), rng.normal(size=(n, 3)), rng.random((n, 3))
+        t_new, w_new, rn_new = rng.random(g), rng.normal(size=(g, 3)), rng.random((g, 3))
+        for noise in (rn_new, np.zeros((0, 3))):
+            out = fk.append_intervals(tg, wg, rn, t_new, w_new, noise)
+            ref_noise = noise if len(noise) else np.zeros((g, 3))
+            for a, b in zip(out, (np.concatenate([tg, t_new]), np.concatenate([wg, w_new]),
+                                  np.concatenate([rn, ref_noise]))):
+                _same(a, b)
+    for values in (np.array([1.0, 2.0, 3.0]), np.array([1.0, 0.0, 3.0]), np.array([1.0, np.nan]),
+                   np.array([2.0, -1e-300]), np.zeros(0), rng.normal(size=50)):
+        assert sk.any_nonpositive(values) == bool((values <= 0).any())

@@ -19,6 +19,7 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
   :func:`fuse_frame_timed`: the test against the prediction, then the fusion when it passes, in one call;
 - :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped), and
   :func:`gyro_jump_looks`: its two looks of a span (its own window, then the previous span's again) in one call;
+- :func:`append_intervals`: the delayed fusion's gyro buffer with a span's intervals appended;
 - :func:`delivery_rows` / :func:`delivery_counts`: a delivery's samples made unit (and whether they are in time
   order), and its tallies after fusion (the last accepted sample, wrong and confidently wrong samples).
 
@@ -36,7 +37,7 @@ from numba import njit
 
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
            "innovation_window", "timing_statistic", "fuse_frame_timed", "saturated_rate_noise", "gyro_jump_statistic",
-           "gyro_jump_looks", "delivery_rows", "delivery_counts"]
+           "gyro_jump_looks", "delivery_rows", "delivery_counts", "append_intervals"]
 
 
 @njit(cache=True)
@@ -912,3 +913,46 @@ def fuse_frame_timed(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_ch
     t, n_acc, n_prop = fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd,
                                   z_last, rate_noise, nis_out, z_out, s_out)
     return stat, loose, True, t, n_acc, n_prop
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def append_intervals(tg, wg, rn, t_new, w_new, rn_new):
+    """The gyro buffer of :class:`startracker.filter.DelayedFusion` with G intervals appended (new arrays: the
+    ``np.concatenate`` of each pair, values copied as they are).
+
+    Parameters
+    ----------
+    tg : ndarray, shape (n,)
+        Buffered interval ends, s.
+    wg : ndarray, shape (n, 3)
+        Their rates, rad/s.
+    rn : ndarray, shape (n, 3)
+        Their extra rate noise, rad²/s.
+    t_new : ndarray, shape (G,)
+        Ends of the new intervals, s.
+    w_new : ndarray, shape (G, 3)
+        Their rates, rad/s.
+    rn_new : ndarray, shape (G, 3) or (0, 3)
+        Their extra rate noise, rad²/s; (0, 3): zero.
+
+    Returns
+    -------
+    tg, wg, rn : ndarray, shape (n + G,), (n + G, 3), (n + G, 3)
+    """
+    n = tg.shape[0]
+    g = t_new.shape[0]
+    tg2 = np.empty(n + g)
+    wg2 = np.empty((n + g, 3))
+    rn2 = np.empty((n + g, 3))
+    for i in range(n):
+        tg2[i] = tg[i]
+        for a in range(3):
+            wg2[i, a] = wg[i, a]
+            rn2[i, a] = rn[i, a]
+    zero_noise = rn_new.shape[0] == 0
+    for i in range(g):
+        tg2[n + i] = t_new[i]
+        for a in range(3):
+            wg2[n + i, a] = w_new[i, a]
+            rn2[n + i, a] = 0.0 if zero_noise else rn_new[i, a]
+    return tg2, wg2, rn2

@@ -1165,7 +1165,7 @@ class StarTrackerUnit:
             self._monitor_slot)
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
-        n_timing = sum_pairwise(self._timing_n)  # ndarray.sum's arithmetic on the window's Python floats
+        n_timing = float(sum(self._timing_n))  # 0.0 / 1.0 each: exact in any order
         timing_alarm = n_timing > 0 and sum_pairwise(self._timing) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
         # its samples' own NIS
@@ -1361,7 +1361,7 @@ class StarTrackerUnit:
         blinded = set()
         if faults:
             t_s, q_s = truth
-            q_mid = quat_interpolate(t_s, q_s, np.clip(t_mid, t_s[0], t_s[-1]))
+            q_mid = quat_interpolate(t_s, q_s, min(max(t_mid, t_s[0]), t_s[-1]))  # np.clip of one float
             bore = quat_rotate(q_mid, self.camera.boresight_body())
             sun = faults.sun_direction_world(t_mid, bore, rng)
             blinded = faults.blinded_heads(t_mid)

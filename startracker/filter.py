@@ -57,6 +57,7 @@ _H = np.hstack([np.eye(3), np.zeros((3, 3))])
 # DelayedFusion's innovations when it has none (shared, empty: nothing to write into)
 _NO_INNOVATIONS = np.zeros((0, 3))
 _NO_INNOVATION_COVS = np.zeros((0, 3, 3))
+_NO_RATE_NOISE = np.zeros((0, 3))  # add_gyro without rate noise (kernels.filter.append_intervals appends zeros)
 _METHODS = ("auto", "sequential")
 
 
@@ -417,8 +418,12 @@ class AttitudeEKF:
         # one memory layout for the kernel (broadcast or strided inputs would each compile a variant)
         return self._fuse(*(np.ascontiguousarray(a) for a in (wg, tg, qm, tm, rs)), rate_noise_rad2_s)
 
-    def _fuse(self, wg, tg, qm, tm, rs, rate_noise=None) -> np.ndarray:
-        """The work of :meth:`process` on checked inputs: one :func:`~startracker.kernels.filter.fuse_frame` call."""
+    def _fuse(self, wg, tg, qm, tm, rs, rate_noise=None, timing=None):
+        """The work of :meth:`process` on checked inputs: one :func:`~startracker.kernels.filter.fuse_frame` call.
+
+        With ``timing`` (``u`` (3,), threshold, loose ratio; M >= 1): behind the delivery's timing test, one
+        :func:`~startracker.kernels.filter.fuse_frame_timed` call; returns ``(statistic, loose, accepted)``, with
+        ``accepted`` None and the filter unchanged when the test failed."""
         m = len(qm)
         # the kernel works in place on fresh float64 copies (no caller's array changes behind its back)
         q = np.array(self.q_body_to_icrs, dtype=np.float64)
@@ -431,11 +436,20 @@ class AttitudeEKF:
         phi = np.empty((6, 6))
         qd = np.empty((6, 6))
         z = np.empty(3)
-        t, n_acc, n_prop = kf.fuse_frame(
-            q, b, P, float(self.t_s), wg, tg, qm, tm, rs, self.sigma_v, self.sigma_u,
-            math.inf if self.gate_chi2 is None else self.gate_chi2, accepted, phi, qd, z,
-            np.zeros((len(tg), 3)) if rate_noise is None else rate_noise, nis, zs, ss,
-        )
+        if timing is None:
+            t, n_acc, n_prop = kf.fuse_frame(
+                q, b, P, float(self.t_s), wg, tg, qm, tm, rs, self.sigma_v, self.sigma_u,
+                math.inf if self.gate_chi2 is None else self.gate_chi2, accepted, phi, qd, z,
+                np.zeros((len(tg), 3)) if rate_noise is None else rate_noise, nis, zs, ss,
+            )
+        else:
+            stat, loose, fused, t, n_acc, n_prop = kf.fuse_frame_timed(
+                q, b, P, float(self.t_s), wg, tg, qm, tm, rs, self.sigma_v, self.sigma_u,
+                math.inf if self.gate_chi2 is None else self.gate_chi2, accepted, phi, qd, z,
+                np.zeros((len(tg), 3)) if rate_noise is None else rate_noise, nis, zs, ss, *timing,
+            )
+            if not fused:
+                return stat, loose, None
         self.last_nis, self.last_innovation_rad, self.last_innovation_cov_rad2 = nis, zs, ss
         self.n_updates += n_acc
         self.n_rejected += m - n_acc
@@ -450,7 +464,7 @@ class AttitudeEKF:
             self.ekf.F, self.ekf.Q = phi, qd
         if m:
             self.ekf.y, self.ekf.R = z.reshape(-1, 1), rs[-1]
-        return accepted
+        return accepted if timing is None else (stat, loose, accepted)
 
     def __repr__(self) -> str:
         sig = np.degrees(self.attitude_sigma_rad) * 3600.0
@@ -509,6 +523,7 @@ class DelayedFusion:
         self._wg = np.zeros((0, 3))
         self._rn = np.zeros((0, 3))
         self._now = None
+        self._intervals_hit = None  # the last _intervals_to: its instant, the buffers it read and its result
         # the propagation-only kernel call's fixed arguments, built once
         self._no_samples = (np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3)))
         self._scratch = (np.zeros(0, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3))
@@ -538,10 +553,9 @@ class DelayedFusion:
         g = len(t_gyro_s)
         if g == 0:
             return
-        rn = np.zeros((g, 3)) if rate_noise_rad2_s is None else rate_noise_rad2_s
-        self._tg = np.concatenate([self._tg, t_gyro_s])
-        self._wg = np.concatenate([self._wg, omega_gyro])
-        self._rn = np.concatenate([self._rn, rn])
+        self._tg, self._wg, self._rn = kf.append_intervals(
+            self._tg, self._wg, self._rn, t_gyro_s, omega_gyro,
+            _NO_RATE_NOISE if rate_noise_rad2_s is None else rate_noise_rad2_s)
         self.t_s = float(self._tg[-1])
         self._now = None
         old = self.t_s - self.horizon_s
@@ -634,6 +648,54 @@ class DelayedFusion:
         self._now = None
         return accepted
 
+    def fuse_timed(self, q_meas_body_to_icrs, t_meas_s, covariance_rad2, rate_axis, timing_chi2_max: float,
+                   loose_ratio: float):
+        """A delivery's timing test against the prediction, then, when it passes, its :meth:`fuse`: the test of
+        :func:`startracker.kernels.filter.timing_statistic` on :meth:`prior_innovations` along the body rate, and the
+        fusion, in one compiled call when the buffer reaches the samples (:func:`~startracker.kernels.filter.fuse_frame_timed`).
+
+        Parameters
+        ----------
+        q_meas_body_to_icrs, t_meas_s, covariance_rad2 :
+            As :meth:`fuse` (M >= 1), none before the filter's time.
+        rate_axis : ndarray, shape (3,)
+            Unit vector of the body rate (body frame).
+        timing_chi2_max : float
+            Above this statistic the samples are not fused.
+        loose_ratio : float
+            The prediction is loose beyond this many times the smallest sample variance along the rate
+            (:func:`~startracker.kernels.filter.timing_statistic`).
+
+        Returns
+        -------
+        statistic : float
+            The timing statistic, χ²(1) without a timing error.
+        loose : bool
+        accepted : ndarray of bool, shape (M,), or None
+            As :meth:`fuse`; None when the test failed (the filter is unchanged).
+        """
+        ekf = self.ekf
+        if ekf is not None and len(t_meas_s) and t_meas_s[0] >= ekf.t_s:
+            t_last = float(t_meas_s[-1])
+            wg, tg, rn, j = self._intervals_to(t_last)
+            if wg is not None:  # the usual case: one compiled call, then fuse's bookkeeping
+                stat, loose, acc = ekf._fuse(wg, tg, q_meas_body_to_icrs, t_meas_s, covariance_rad2, rn,
+                                             timing=(rate_axis, timing_chi2_max, loose_ratio))
+                if acc is None:
+                    return stat, bool(loose), None
+                self.last_nis = ekf.last_nis
+                self.last_innovation_rad = ekf.last_innovation_rad
+                self.last_innovation_cov_rad2 = ekf.last_innovation_cov_rad2
+                self._keep_from(j if self._tg[j] > t_last else j + 1)
+                self._now = None
+                return stat, bool(loose), acc
+        # the others: the test, then the fusion, apart
+        z, s = self.prior_innovations(q_meas_body_to_icrs, t_meas_s, covariance_rad2)
+        stat, loose = kf.timing_statistic(rate_axis, z, s, covariance_rad2, loose_ratio)
+        if stat > timing_chi2_max:
+            return stat, bool(loose), None
+        return stat, bool(loose), self.fuse(q_meas_body_to_icrs, t_meas_s, covariance_rad2)
+
     def prior_innovations(self, q_meas_body_to_icrs, t_meas_s, covariance_rad2):
         """Each sample's innovation against the filter's prediction at its instant, with no update in between (the
         filter does not change): what the samples say against the gyro-propagated estimate, before any of them
@@ -671,12 +733,20 @@ class DelayedFusion:
     def _intervals_to(self, t_last: float):
         """The buffered gyro intervals up to ``t_last``, the one covering it split at its instant: ``(wg, tg, rn, j)``
         with ``j`` the covering interval's index; ``(None, None, None, len)`` when no buffered interval reaches it."""
+        hit = self._intervals_hit
+        if (hit is not None and hit[0] == t_last and hit[1] is self._tg and hit[2] is self._wg
+                and hit[3] is self._rn):  # the timing test's, then the fusion's, of one delivery
+            return hit[4]
         j = int(self._tg.searchsorted(t_last, side="left"))
         if j == len(self._tg):
-            return None, None, None, j
-        tg = self._tg[: j + 1].copy()
-        tg[j] = t_last
-        return self._wg[: j + 1], tg, self._rn[: j + 1], j
+            out = None, None, None, j
+        else:
+            tg = self._tg[: j + 1].copy()
+            tg[j] = t_last
+            out = self._wg[: j + 1], tg, self._rn[: j + 1], j
+        # the buffers are replaced, never changed in place: their identity keys the result (read only)
+        self._intervals_hit = (t_last, self._tg, self._wg, self._rn, out)
+        return out
 
     def _held_rate(self) -> np.ndarray:
         """The filter's last gyro rate (bias included), (1, 3): what propagates when nothing is buffered."""

@@ -84,6 +84,8 @@ __all__ = [
 ]
 
 RESTART_AFTER_REJECTED_FRAMES = 3
+# no second look at the gyro jump test (StarTrackerUnit._monitor_gyro_jump): an empty design
+_NO_JUMP_DESIGN = (np.zeros((0, 0)), np.zeros(0), 0)
 RESTART_BIAS_SIGMA_RAD_S = float(np.radians(1.0))
 
 
@@ -130,6 +132,7 @@ VERDICT_CHI2_3 = chi2_3_threshold(VERDICT_FALSE_ALARM_P)
 # the true rate is unknown beyond the reading, up to the agility of the vehicles the unit serves (20 °/s slews,
 # margin included); the filter adds its square, as an angle random walk (rad²/s), to the attitude process noise.
 SATURATED_RATE_SIGMA_RAD_S = float(np.radians(30.0))
+_SATURATED_RATE_VAR_RAD2_S2 = SATURATED_RATE_SIGMA_RAD_S**2
 # The estimate is flagged valid only while its largest 1σ is within this: beyond it, it is no attitude to steer by.
 ESTIMATE_VALID_SIGMA_RAD = float(np.radians(1.0))
 # Longest a sample may take to reach the filter (processing delay); gyro intervals older than this are folded in.
@@ -187,8 +190,40 @@ def sample_nis_threshold(n_samples: int) -> float:
     return chi2_3_threshold(MONITOR_FALSE_ALARM_P / n_samples)
 
 
+def sum_pairwise(values) -> float:
+    """The sum of a short sequence of floats (at most 128) with numpy's own summation (``ndarray.sum`` of float64):
+    below 8 terms one after the other, else eight running sums added pairwise, then the rest one by one. The same
+    float as ``np.array(values).sum()``, without building the array (the monitor's window of 10 each delivery)."""
+    n = len(values)
+    if n < 8:
+        res = 0.0
+        for v in values:
+            res += v
+        return res
+    r0, r1, r2, r3, r4, r5, r6, r7 = values[:8]
+    i = 8
+    n8 = n - n % 8
+    while i < n8:
+        r0 += values[i]
+        r1 += values[i + 1]
+        r2 += values[i + 2]
+        r3 += values[i + 3]
+        r4 += values[i + 4]
+        r5 += values[i + 5]
+        r6 += values[i + 6]
+        r7 += values[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += values[i]
+        i += 1
+    return res
+
+
+@functools.lru_cache(maxsize=1024)
 def _chi2_quantile_wilson_hilferty(dof: float, z: float) -> float:
-    """χ²(dof) quantile at the standard-normal quantile ``z`` (Wilson-Hilferty; within 1 % for dof >= 3 here)."""
+    """χ²(dof) quantile at the standard-normal quantile ``z`` (Wilson-Hilferty; within 1 % for dof >= 3 here); the
+    monitors ask for a few dof (whole numbers of samples) over and over: kept."""
     c = 2.0 / (9.0 * dof)
     return dof * (1.0 - c + z * math.sqrt(c)) ** 3
 
@@ -583,11 +618,14 @@ class StarTrackerUnit:
         self.tracker = self.trackers[0]
         self.gyro_max_rate_rad_s = float(min(self.gyro_spec.max_rate_rad_s, 2 * np.pi))
         self.gyro_period_s = 1.0 / config.gyro_rate_hz
+        # the saturation monitor's per-configuration arguments: the gyro's range, whether its readings are noisy
+        self._saturation_args = (float(self.gyro_spec.max_rate_rad_s), self.gyro_spec.arw_rad_sqrt_s > 0.0)
         self._plans: dict[tuple, ExposurePlan] = {}
         # gyro jump monitor: the noise of one reading (the white noise of the sample average, plus the model floor)
         self._jump_sigma_rad_s = math.hypot(self.gyro_spec.arw_rad_sqrt_s * math.sqrt(config.gyro_rate_hz),
                                             GYRO_JUMP_MODEL_SIGMA_RAD_S)
         self._jump_designs: dict[tuple, tuple] = {}
+        self._jump_sigma2 = self._jump_sigma_rad_s**2
         g = int(round(config.frame_period_s * config.gyro_rate_hz))
         self._allowance_span = g
         self.bias_allowance_rad_s = self._bias_allowance(g)
@@ -618,8 +656,9 @@ class StarTrackerUnit:
                          np.zeros((MONITOR_DELIVERIES, 3, 3)))
         self._monitor_slot = 0
         self._monitor_filled = 0
-        self._timing = np.zeros(MONITOR_DELIVERIES)  # each delivery's timing statistic (χ²(1) each, 0: none)
-        self._timing_n = np.zeros(MONITOR_DELIVERIES)
+        # each delivery's timing statistic (χ²(1) each, 0: none) and whether it has one (1.0) or not (0.0), Python floats
+        self._timing = [0.0] * MONITOR_DELIVERIES
+        self._timing_n = [0.0] * MONITOR_DELIVERIES
         self._timing_last = (0.0, 0.0)  # the last delivery's timing statistic (see _timing_statistic)
         self._inconsistent = False
         self._timing_suspect = False
@@ -643,6 +682,7 @@ class StarTrackerUnit:
         self._correction_before_jump = None  # the correction before a step found in the last span
         self._frame_latency_ms = 0.0
         self._frame_wall_ms = 0.0
+        self._cov_cache = None  # (P, key, covariance) of the last _protected_cov
 
     @property
     def ekf(self) -> AttitudeEKF | None:
@@ -738,8 +778,9 @@ class StarTrackerUnit:
         opens by ``(|δ̂| + 3 σ_δ)²`` per axis for the correction's error; the estimate is flagged invalid until a
         sample exposed after the step is accepted. The fault's end, a step back, is found and undone the same way."""
         self._correction_before_jump = None
-        if self._gyro_correction.any():
-            omega_meas = omega_meas - self._gyro_correction
+        c = self._gyro_correction
+        if c[0] or c[1] or c[2]:  # ndarray.any() of three floats (NaN counts), without its dispatch
+            omega_meas = omega_meas - c
         if len(omega_meas) != self._allowance_span:  # spans as long as the env's control period
             self._allowance_span = len(omega_meas)
             self.bias_allowance_rad_s = self._bias_allowance(self._allowance_span)
@@ -749,17 +790,24 @@ class StarTrackerUnit:
         self._gyro_prev, self._gyro_prev_saturated, self._gyro_prev_times = omega_meas, saturated, times
         if saturated or prev_saturated or (len(prev) == 0 and len(omega_meas) < 3):
             return omega_meas  # a clipped reading is the saturation monitor's; too few readings for a line and a step
-        y = np.concatenate([prev, omega_meas]) if len(prev) else omega_meas
-        m, den, first = self._jump_design(len(prev), len(omega_meas))
+        n_prev, n_cur = len(prev), len(omega_meas)
+        m, den, first = self._jump_design(n_prev, n_cur)
+        # the second look (this span's readings after the previous span's) when the first finds nothing: one call
+        if GYRO_JUMP_SECOND_LOOK and len(prev2) >= 2 and n_prev >= 2 and not prev2_saturated:
+            m2, den2, first2 = self._jump_design(len(prev2), n_prev, n_cur)
+        else:
+            m2, den2, first2 = _NO_JUMP_DESIGN
         delta = np.zeros(3)
-        sigma2 = self._jump_sigma_rad_s**2
-        t_max, j = filter_kernels.gyro_jump_statistic(np.ascontiguousarray(y, dtype=np.float64), m, den, first,
-                                                      sigma2, delta)
-        if j < 0 or t_max <= GYRO_JUMP_CHI2_3:
-            if GYRO_JUMP_SECOND_LOOK and len(prev2) >= 2 and len(prev) >= 2 and not prev2_saturated:
-                return self._second_look(prev2, prev, prev_times, omega_meas)
+        sigma2 = self._jump_sigma2
+        look, j = filter_kernels.gyro_jump_looks(
+            np.ascontiguousarray(prev2, dtype=np.float64), np.ascontiguousarray(prev, dtype=np.float64),
+            np.ascontiguousarray(omega_meas, dtype=np.float64), m, den, first, m2, den2, first2, sigma2,
+            GYRO_JUMP_CHI2_3, delta)
+        if look == 0:
             return omega_meas
-        g = j - len(prev)
+        if look == 2:
+            return self._second_look(prev2, prev, prev_times, omega_meas, j, delta, den2)
+        g = j - n_prev
         self._gyro_jumps += 1
         self._t_gyro_jump = float(times[g])  # reading g covers (times[g], times[g + 1]]
         self._correction_before_jump = self._gyro_correction
@@ -776,8 +824,11 @@ class StarTrackerUnit:
             self.fusion.start(ekf)  # its state changed: the estimate now is recomputed
         return omega_meas
 
-    def _second_look(self, prev2, prev, prev_times, omega_meas) -> np.ndarray:
-        """The jump test of the previous span's readings again, now with this span's readings after them.
+    def _second_look(self, prev2, prev, prev_times, omega_meas, j: int, delta: np.ndarray,
+                     den: np.ndarray) -> np.ndarray:
+        """A step the jump test found in the previous span's readings tested again, now with this span's readings
+        after them (:func:`startracker.kernels.filter.gyro_jump_looks`: reading ``j`` of the three spans' window, its
+        estimate ``delta`` (3,) rad/s and the window's ``den``); this span's readings corrected.
 
         A step tested in its own span has few readings after it when it falls late there (σ_δ up to 1.3 σ of one
         reading); one span later it has a whole span more, and the test over the three spans (offset, slope and a
@@ -785,14 +836,8 @@ class StarTrackerUnit:
         span's readings and the buffered ones from the step on are corrected by δ̂ (the filter's own intervals
         before that it has integrated: its attitude covariance opens by that drift), the bias covariance opens as
         for a step found at once, and the estimate is invalid until a sample fused after now is accepted."""
-        n2, n1, n0 = len(prev2), len(prev), len(omega_meas)
-        m, den, first = self._jump_design(n2, n1, n0)
-        y = np.ascontiguousarray(np.concatenate([prev2, prev, omega_meas]), dtype=np.float64)
-        delta = np.zeros(3)
-        sigma2 = self._jump_sigma_rad_s**2
-        t_max, j = filter_kernels.gyro_jump_statistic(y, m, den, first, sigma2, delta)
-        if j < 0 or t_max <= GYRO_JUMP_CHI2_3:
-            return omega_meas
+        n2 = len(prev2)
+        sigma2 = self._jump_sigma2
         g = j - n2  # reading g of the previous span covers (prev_times[g], prev_times[g + 1]]
         t_step = float(prev_times[g])
         self._gyro_jumps += 1
@@ -833,9 +878,10 @@ class StarTrackerUnit:
         user hands in may well repeat). Its true rate is unknown beyond the reading:
         :data:`SATURATED_RATE_SIGMA_RAD_S`, squared, enters the attitude process noise."""
         out = np.empty((len(omega_meas), 3))
+        limit, noisy = self._saturation_args
         last = filter_kernels.saturated_rate_noise(
-            np.ascontiguousarray(omega_meas, dtype=np.float64), self._omega_gyro, float(self.gyro_spec.max_rate_rad_s),
-            own_gyro and self.gyro_spec.arw_rad_sqrt_s > 0.0, SATURATED_RATE_SIGMA_RAD_S**2, out)
+            np.ascontiguousarray(omega_meas, dtype=np.float64), self._omega_gyro, limit, own_gyro and noisy,
+            _SATURATED_RATE_VAR_RAD2_S2, out)
         return (None, -1) if last < 0 else (out, last)
 
     # ------------------------------------------------------------------ one span of truth
@@ -871,10 +917,12 @@ class StarTrackerUnit:
         n_frames = int(round((t_end - t0) / frame_period_s))
         duration_s = n_frames * frame_period_s
         faults = self.faults
+        # the env's own history (float64, C-contiguous): the compiled calls take it as it is
+        own_history = (quats.dtype == np.float64 and quats.flags.c_contiguous and times.dtype == np.float64
+                       and times.flags.c_contiguous and quats.ndim == 2)
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
-            if (quats.dtype == np.float64 and quats.flags.c_contiguous and times.dtype == np.float64
-                    and times.flags.c_contiguous):  # the env's own history: one compiled call
+            if own_history:  # one compiled call
                 omega_avg = rk.interval_rates_rows(times, quats)
             else:
                 omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]
@@ -916,17 +964,15 @@ class StarTrackerUnit:
             frame_ends.append((len(samples), tf + frame_period_s + 1e-3 * self._frame_latency_ms))
             lat_sum += self._frame_latency_ms
             wall_sum += self._frame_wall_ms
-            last = self.last_stats
+            head_latency, head_wall, f_pm, f_gst, f_id, n_stars, exposures_per_frame, _ = self._frame_figures
+            head_samples = self._frame_head_samples
             for h in range(n_heads):
-                per_head_n[h] += self._frame_head_samples[h]
-                per_head_lat[h] += last["matching_latency_ms_per_head"][h]
-                per_head_wall[h] += last["matching_wall_clock_ms_per_head"][h]
-            bd = last["wall_clock_breakdown_ms"]
-            bd_pm += bd["predict_match"]
-            bd_gst += bd["group_solve_test"]
-            bd_id += bd["identify"]
-            n_stars = last["n_stars"]
-            exposures_per_frame = last["exposures_per_frame"]
+                per_head_n[h] += head_samples[h]
+                per_head_lat[h] += head_latency[h]
+                per_head_wall[h] += head_wall[h]
+            bd_pm += f_pm
+            bd_gst += f_gst
+            bd_id += f_id
         # distinct attitude instants: heads exposed at the same instant add samples, not updates (round half to
         # even, as np.round)
         n_instants = len({round(smp.t_s * 1e6) for smp in samples})
@@ -947,7 +993,10 @@ class StarTrackerUnit:
         if samples:  # judged against this span's truth now, counted when the filter has seen them
             t_arr, q_arr, c_arr = _sample_arrays(samples)
             t_true = t_arr - np.array(offsets) if offsets is not None else t_arr
-            wrong = _wrong_samples(t_true, q_arr, c_arr, times, quats)
+            if own_history:  # the sample arrays are fresh float64 ones (_sample_arrays): no copies
+                wrong = sensor_kernels.wrong_sample_flags(t_true, q_arr, c_arr, times, quats, VERDICT_CHI2_3)
+            else:
+                wrong = _wrong_samples(t_true, q_arr, c_arr, times, quats)
             start = 0
             for end, t_done in frame_ends:
                 if end > start:
@@ -982,7 +1031,15 @@ class StarTrackerUnit:
 
     def _protected_cov(self, P, t_s: float) -> np.ndarray:
         """The estimate's reported attitude covariance (3, 3), rad²: the filter's, plus the drift of a gyro bias change
-        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`)."""
+        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`).
+
+        Read only: kept for the next call on the same ``P`` (the filter's estimate now, which is recomputed into a new
+        array whenever it changes), time, last accepted sample and allowance (the verdict and :meth:`estimate` of
+        one span ask for it both)."""
+        key = (t_s, self._t_accepted, self.bias_allowance_rad_s)
+        hit = self._cov_cache
+        if hit is not None and hit[0] is P and hit[1] == key:
+            return hit[2]
         cov = P[:3, :3].copy()
         dt = t_s - self._t_accepted
         if dt > 0.0:
@@ -990,6 +1047,7 @@ class StarTrackerUnit:
             cov[0, 0] += extra
             cov[1, 1] += extra
             cov[2, 2] += extra
+        self._cov_cache = (P, key, cov)
         return cov
 
     def _estimate_valid(self, P) -> bool:
@@ -1013,10 +1071,11 @@ class StarTrackerUnit:
             _, tm, qm, cm, wrong = due[0]
         else:
             tm, qm, cm, wrong = (np.concatenate([d[i] for d in due]) for i in range(1, 5))
-        if len(tm) > 1 and (tm[1:] < tm[:-1]).any():  # several heads: merge into time order (stable)
+        # unit rows (np.linalg.norm(qm, axis=1)'s arithmetic) and the order test in one compiled call
+        qm, in_order = filter_kernels.delivery_rows(qm, tm)
+        if not in_order:  # several heads: merge into time order (stable)
             order = np.argsort(tm, kind="stable")
             tm, qm, cm, wrong = tm[order], qm[order], cm[order], wrong[order]
-        qm = qm / rk.vector_norm(qm)[:, None]  # np.linalg.norm(qm, axis=1)'s arithmetic, without its dispatch
         accepted = np.zeros(len(tm), dtype=bool)
         first = 0
         if self.fusion.ekf is None:  # the first fix starts the filter
@@ -1028,9 +1087,16 @@ class StarTrackerUnit:
         # a fix the timing test cannot vouch for: the filter's first, or one over a loose prediction (a gap)
         loose = first == 1 and self._rate_matters()
         t_filter = self.fusion.ekf.t_s
+        fused = None
         if first == 0 and float(tm[-1]) >= t_filter:  # tm is in time order: some samples are fresh
             if float(tm[0]) >= t_filter:  # all (the usual case): no masked copies
-                stat, has, loose = self._timing_statistic(qm, tm, cm)
+                u = self._rate_axis()
+                if u is None:  # too slow a rate for a timestamp to matter: no test
+                    stat, has, loose = 0.0, 0.0, False
+                else:  # the test and, when it passes, the fusion, in one call
+                    stat, loose, fused = self.fusion.fuse_timed(qm, tm, cm, u, MONITOR_TIMING_CHI2_1,
+                                                                TIMING_LOOSE_PRIOR_RATIO)
+                    has = 1.0
             else:
                 fresh = tm >= t_filter
                 stat, has, loose = self._timing_statistic(qm[fresh], tm[fresh], cm[fresh])
@@ -1039,23 +1105,21 @@ class StarTrackerUnit:
             # the frame's timestamps disagree with the gyro along the rate: fused, it would drag the estimate
             # (and the bias) by ω δt; it is refused and the estimate is invalid until the timing is quiet again
             self._timing_suspect = True
-            self._timing[:] = 0.0
-            self._timing_n[:] = 0.0
+            self._timing = [0.0] * MONITOR_DELIVERIES
+            self._timing_n = [0.0] * MONITOR_DELIVERIES
             self._monitor_filled = 0
             self._timing_alarms += 1
             self.fusion.last_innovation_rad = np.zeros((0, 3))
+        elif fused is not None:
+            accepted = fused
         else:
             accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
-        any_accepted = bool(accepted.any())
+        last_accepted, n_wrong, n_confident = filter_kernels.delivery_counts(accepted, wrong)
+        any_accepted = last_accepted >= 0
         if any_accepted:
-            self._t_accepted = max(self._t_accepted, float(tm[accepted][-1]))
+            self._t_accepted = max(self._t_accepted, float(tm[last_accepted]))
             # a loose fix waits for CONFIRM_DELIVERIES later frames the timing test could check
             self._unconfirmed = CONFIRM_DELIVERIES if loose else max(self._unconfirmed - 1, 0)
-        if wrong.any():
-            n_wrong = int(np.count_nonzero(wrong))
-            n_confident = int(np.count_nonzero(wrong & accepted))
-        else:
-            n_wrong = n_confident = 0
         self._n_wrong += n_wrong
         self._n_confidently_wrong += n_confident
         stats["n_wrong_samples"] += n_wrong
@@ -1101,8 +1165,8 @@ class StarTrackerUnit:
             self._monitor_slot)
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
-        n_timing = float(self._timing_n.sum())  # ndarray.sum: np.sum's summation without its dispatch
-        timing_alarm = n_timing > 0 and float(self._timing.sum()) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
+        n_timing = float(sum(self._timing_n))  # 0.0 / 1.0 each: exact in any order
+        timing_alarm = n_timing > 0 and sum_pairwise(self._timing) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
         # its samples' own NIS
         sample_alarm = MONITOR_SAMPLE_NIS and n_nis > 0 and max_nis > sample_nis_threshold(int(n_nis))
@@ -1116,8 +1180,8 @@ class StarTrackerUnit:
             fusion.start(ekf)  # its state changed: the estimate now is recomputed
             for a in ring:
                 a[:] = 0.0
-            self._timing[:] = 0.0
-            self._timing_n[:] = 0.0
+            self._timing = [0.0] * MONITOR_DELIVERIES
+            self._timing_n = [0.0] * MONITOR_DELIVERIES
             self._monitor_filled = 0
             self._inconsistent = True
             self._timing_suspect = self._timing_suspect or timing_alarm
@@ -1129,7 +1193,7 @@ class StarTrackerUnit:
         # one (its timing sum below χ²(n)'s median), not merely none strong enough to alarm again.
         if self._timing_suspect and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES and (
                 n_timing == 0
-                or float(self._timing.sum()) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
+                or sum_pairwise(self._timing) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
             self._timing_suspect = False
 
     def _rate_matters(self) -> bool:
@@ -1151,14 +1215,20 @@ class StarTrackerUnit:
         :data:`TIMING_LOOSE_PRIOR_RATIO` times the smallest ``r_i``, the test can pass a timing error of
         ``√(χ² (p + 1 / Σ 1 / r_i))``, most of which the fused estimate would take: the fix must be confirmed by later
         frames (:data:`CONFIRM_DELIVERIES`)."""
-        ekf = self.fusion.ekf
-        w = ekf.omega_body
-        w_norm = math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
-        if w_norm < TIMING_MIN_RATE_RAD_S or len(tm) == 0:
+        u = self._rate_axis()
+        if u is None or len(tm) == 0:
             return 0.0, 0.0, False
         z, s = self.fusion.prior_innovations(qm, tm, cm)
-        stat, loose = filter_kernels.timing_statistic(w / w_norm, z, s, cm, TIMING_LOOSE_PRIOR_RATIO)
+        stat, loose = filter_kernels.timing_statistic(u, z, s, cm, TIMING_LOOSE_PRIOR_RATIO)
         return stat, 1.0, bool(loose)
+
+    def _rate_axis(self):
+        """The filter's body-rate direction (3,), for the timing test; None below :data:`TIMING_MIN_RATE_RAD_S`."""
+        w = self.fusion.ekf.omega_body
+        w_norm = math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
+        if w_norm < TIMING_MIN_RATE_RAD_S:
+            return None
+        return w / w_norm
 
     @property
     def n_wrong_samples_total(self) -> int:
@@ -1284,13 +1354,14 @@ class StarTrackerUnit:
         self._frame_head_samples = [0] * n_heads
         self._frame_latency_ms = self._frame_wall_ms = 0.0
         if faults and faults.frame_dropped(t_mid):
-            self.last_stats = _empty_stats(n_heads)
+            self._frame_figures = ([0.0] * n_heads, [0.0] * n_heads, 0.0, 0.0, 0.0, 0, 0, 0)
+            self._stats = None  # the frame's figures, built when asked for (last_stats)
             return []
         sun = None
         blinded = set()
         if faults:
             t_s, q_s = truth
-            q_mid = quat_interpolate(t_s, q_s, np.clip(t_mid, t_s[0], t_s[-1]))
+            q_mid = quat_interpolate(t_s, q_s, min(max(t_mid, t_s[0]), t_s[-1]))  # np.clip of one float
             bore = quat_rotate(q_mid, self.camera.boresight_body())
             sun = faults.sun_direction_world(t_mid, bore, rng)
             blinded = faults.blinded_heads(t_mid)
@@ -1304,7 +1375,7 @@ class StarTrackerUnit:
             plan = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
             det, scene = head.detections(self.catalogs[k], truth, plan, t_frame, rng, cfg.fidelity, bodies)
-            if len(det) and (det.intensity <= 0).any():
+            if len(det) and sensor_kernels.any_nonpositive(det.intensity):
                 det = det.subset(np.flatnonzero(det.intensity > 0))  # background-dominated blobs carry no star
             if faults:
                 det = faults.modify_detections(det, t_mid, rng, head.camera.resolution)
@@ -1342,7 +1413,8 @@ class StarTrackerUnit:
             n_exp = max(n_exp, int(plan.n_exposures))
             frames.append((scene, det))
         # the sensor tracks while any head tracks
-        self.tracker_mode = next((m for m in ("track", "acquire") if m in self.head_modes), "lost")
+        modes = self.head_modes
+        self.tracker_mode = "track" if "track" in modes else ("acquire" if "acquire" in modes else "lost")
         if prev_mode == "track" and self.tracker_mode != "track":
             self._lost_events += 1
             self._t_lock_lost = t_frame
@@ -1351,14 +1423,28 @@ class StarTrackerUnit:
             self._t_lock_lost = None
         if cfg.keep_images:
             self._last_frame = frames[0]
-        self._frame_latency_ms = latency_ms = sum(head_latency)
-        self._frame_wall_ms = wall_ms = sum(head_wall)
-        self.last_stats = _empty_stats(
-            n_heads, matching_latency_ms=latency_ms, matching_latency_ms_per_head=head_latency,
-            matching_wall_clock_ms=wall_ms, matching_wall_clock_ms_per_head=head_wall,
-            wall_clock_breakdown_ms=dict(predict_match=bd_pm, group_solve_test=bd_gst, identify=bd_id),
-            n_stars=n_matched, exposures_per_frame=n_exp, n_attitude_samples=len(samples))
+        self._frame_latency_ms = sum(head_latency)
+        self._frame_wall_ms = sum(head_wall)
+        self._frame_figures = (head_latency, head_wall, bd_pm, bd_gst, bd_id, n_matched, n_exp, len(samples))
+        self._stats = None  # the frame's figures, built when asked for (last_stats): observe reads them as they are
         return samples
+
+    @property
+    def last_stats(self) -> dict:
+        """Figures of the last frame (:meth:`process_frame`) or span (:meth:`observe`); see the class docstring."""
+        if self._stats is None:
+            head_latency, head_wall, bd_pm, bd_gst, bd_id, n_matched, n_exp, n_samples = self._frame_figures
+            self._stats = _empty_stats(
+                len(head_latency), matching_latency_ms=self._frame_latency_ms,
+                matching_latency_ms_per_head=head_latency, matching_wall_clock_ms=self._frame_wall_ms,
+                matching_wall_clock_ms_per_head=head_wall,
+                wall_clock_breakdown_ms=dict(predict_match=bd_pm, group_solve_test=bd_gst, identify=bd_id),
+                n_stars=n_matched, exposures_per_frame=n_exp, n_attitude_samples=n_samples)
+        return self._stats
+
+    @last_stats.setter
+    def last_stats(self, value: dict) -> None:
+        self._stats = value
 
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
@@ -1366,7 +1452,7 @@ class StarTrackerUnit:
         if self.fusion.ekf is None:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
         q, _, P, omega, t_s = self.fusion.current()
-        cov = self._protected_cov(P, t_s)
+        cov = self._protected_cov(P, t_s).copy()
         sig = math.sqrt(max(cov[0, 0], cov[1, 1], cov[2, 2]))
         return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(cov), cov)
 

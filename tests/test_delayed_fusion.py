@@ -146,3 +146,47 @@ def test_env_takes_a_processor_and_reports_its_latency():
         env.close()
     with pytest.raises(TypeError, match="processor"):
         gym.make("startracker/AttitudeHold-v0", processor="fast")
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_fuse_timed_is_the_timing_test_then_fuse(seed):
+    """The delivery's timing test and its fusion in one call equal, bit for bit, the test on prior_innovations
+    (timing_statistic along the rate) followed by fuse: the statistic, the loose flag, the accepted samples, the
+    filter's state, its innovations and the estimate now; when the statistic is above the threshold nothing is
+    fused and the filter is left as it was. Both with the buffer reaching past the samples (one compiled call) and
+    with the samples at the end of the buffer."""
+    from startracker.kernels.filter import timing_statistic
+
+    ekf, wg, tg, _, _, cov = setup(seed)
+    rng = np.random.default_rng(seed)
+    t_meas = np.array([0.1234, 0.1534, 0.1834, 0.2134])
+    q_meas = np.array([quat_multiply(quat_integrate(ekf.q_body_to_icrs, np.radians([0.0, 20.0, 3.0]), t),
+                                     quat_from_rotvec(rng.normal(size=3) * 5 * ARCSEC)) for t in t_meas])
+    covs = np.repeat(cov[None], len(t_meas), axis=0)
+    u = np.radians([0.0, 20.0, 3.0]) / np.linalg.norm(np.radians([0.0, 20.0, 3.0]))
+    for n_gyro in (33, 22):
+        a, b = DelayedFusion(horizon_s=1.0), DelayedFusion(horizon_s=1.0)
+        a.start(copy.deepcopy(ekf))
+        b.start(copy.deepcopy(ekf))
+        a.add_gyro(wg[:n_gyro], tg[:n_gyro])
+        b.add_gyro(wg[:n_gyro], tg[:n_gyro])
+        if n_gyro == 22:  # the last sample at the buffer's very end
+            t_meas[-1] = tg[21]
+        z, s = b.prior_innovations(q_meas, t_meas, covs)
+        stat_ref, loose_ref = timing_statistic(u, z, s, covs, 4.0)
+        for threshold in (np.inf, stat_ref * 0.5):
+            a2, b2 = copy.deepcopy(a), copy.deepcopy(b)
+            stat, loose, acc = a2.fuse_timed(q_meas, t_meas, covs, u, threshold, 4.0)
+            assert stat == stat_ref and loose == bool(loose_ref)
+            if threshold < stat_ref:
+                assert acc is None
+                assert np.array_equal(a2.ekf.P, ekf.P) and np.array_equal(a2.ekf.q_body_to_icrs, ekf.q_body_to_icrs)
+                continue
+            ref = b2.fuse(q_meas, t_meas, covs)
+            assert np.array_equal(acc, ref) and acc.any()
+            for x, y in zip(a2.current(), b2.current()):
+                assert np.array_equal(x, y)
+            assert np.array_equal(a2.ekf.P, b2.ekf.P) and a2.ekf.t_s == b2.ekf.t_s
+            assert np.array_equal(a2.last_nis, b2.last_nis)
+            assert np.array_equal(a2.last_innovation_rad, b2.last_innovation_rad)
+            assert np.array_equal(a2.last_innovation_cov_rad2, b2.last_innovation_cov_rad2)

@@ -504,3 +504,101 @@ def test_rate_kernels_are_the_numpy_expressions_bit_for_bit():
         w, cov = rate_at(w1, c1, a, ca, lever, lever**2)
         np.testing.assert_array_equal(w, w1 + a * lever)
         np.testing.assert_array_equal(cov, c1 + ca * lever**2)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_delivery_kernels_equal_their_numpy_formulas(seed):
+    """A delivery's rows made unit bit for bit as ``q / np.linalg.norm(q, axis=1)[:, None]`` with the order test of
+    ``np.diff(t) >= 0`` (NaN instants count as in order, as numpy's comparison says), and its tallies after fusion:
+    the last accepted index, ``count_nonzero(wrong)`` and ``count_nonzero(wrong & accepted)``."""
+    from startracker.kernels import filter as fk
+
+    rng = np.random.default_rng(seed)
+    for m in (1, 2, 7, 21):
+        q = rng.normal(size=(m, 4)) * rng.choice([1e-3, 1.0, 1e3], size=(m, 1))
+        t = np.sort(rng.uniform(0.0, 1.0, m))
+        unit, in_order = fk.delivery_rows(q, t)
+        _same(unit, q / np.linalg.norm(q, axis=1)[:, None])
+        assert in_order is True
+        if m > 1:
+            t_swapped = t.copy()
+            t_swapped[[0, -1]] = t_swapped[[-1, 0]]
+            assert bool((t_swapped[1:] < t_swapped[:-1]).any())
+            assert fk.delivery_rows(q, t_swapped)[1] is False
+        accepted = rng.random(m) < 0.6
+        wrong = rng.random(m) < 0.4
+        last, n_wrong, n_confident = fk.delivery_counts(accepted, wrong)
+        assert last == (np.flatnonzero(accepted)[-1] if accepted.any() else -1)
+        assert n_wrong == np.count_nonzero(wrong) and n_confident == np.count_nonzero(wrong & accepted)
+    t_nan = np.array([0.0, np.nan, 0.1])
+    assert not (t_nan[1:] < t_nan[:-1]).any()
+    assert fk.delivery_rows(np.ones((3, 4)), t_nan)[1] is True
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_gyro_jump_looks_equal_two_statistics_on_the_concatenated_windows(seed):
+    """The jump monitor's two looks in one call: the first look is gyro_jump_statistic on the previous and this
+    span's readings; only when it finds nothing beyond the threshold, the second on the three spans' readings; the
+    step's estimate is the look's own, bit for bit."""
+    from startracker.kernels import filter as fk
+
+    rng = np.random.default_rng(seed)
+    n = 10
+    sigma2 = 1e-8
+    designs = {}
+    for n_prev, n_cur, n_next in ((n, n, 0), (n, n, n)):
+        k = n_prev + n_cur + n_next
+        tau = np.arange(k, dtype=np.float64) - n_prev + 0.5
+        cols = [np.ones(k), tau, np.maximum(tau, 0.0)] + ([np.maximum(tau - n_cur, 0.0)] if n_next else [])
+        x = np.column_stack(cols)
+        mm = np.ascontiguousarray(np.eye(k) - x @ np.linalg.pinv(x))
+        steps = np.tril(np.ones((k, k)))
+        den = np.einsum("gj,gh,hj->j", steps, mm, steps)
+        den[den < 1e-9] = 0.0
+        den[:n_prev] = 0.0
+        den[n_prev + n_cur:] = 0.0
+        designs[n_next] = (mm, den, n_prev)
+    for step_at in (None, 3 * n - 2, 2 * n + 3, n + 8):  # none, in this span, in the previous span (late), early
+        y = rng.normal(size=(3 * n, 3)) * 1e-4 + 0.01 * np.linspace(0, 1, 3 * n)[:, None]
+        if step_at is not None:
+            y[step_at:] += 0.004 * rng.normal(size=3)
+        prev2, prev, cur = y[:n], y[n:2 * n], y[2 * n:]
+        for second in (False, True):
+            m2, den2, first2 = designs[n] if second else (np.zeros((0, 0)), np.zeros(0), 0)
+            delta = np.zeros(3)
+            look, j = fk.gyro_jump_looks(prev2, prev, cur, *designs[0], m2, den2, first2, sigma2, 40.0, delta)
+            d1 = np.zeros(3)
+            t1, j1 = fk.gyro_jump_statistic(np.concatenate([prev, cur]), *designs[0], sigma2, d1)
+            if j1 >= 0 and t1 > 40.0:
+                assert (look, j) == (1, j1)
+                _same(delta, d1)
+                continue
+            if not second:
+                assert (look, j) == (0, j1)
+                continue
+            d2 = np.zeros(3)
+            t2, j2 = fk.gyro_jump_statistic(np.concatenate([prev2, prev, cur]), m2, den2, first2, sigma2, d2)
+            assert (look, j) == ((2 if j2 >= 0 and t2 > 40.0 else 0), j2)
+            if look == 2:
+                _same(delta, d2)
+
+
+def test_buffer_append_and_nonpositive_test_equal_numpy():
+    """The delayed fusion's buffer append is ``np.concatenate`` of each pair (zeros for an empty rate noise), bit for
+    bit, from an empty buffer too; the detections' test is ``(values <= 0).any()`` (NaN is not <= 0)."""
+    from startracker.kernels import filter as fk
+    from startracker.kernels import sensor as sk
+
+    rng = np.random.default_rng(7)
+    for n, g in ((0, 10), (7, 10), (12, 1)):
+        tg, wg, rn = rng.random(n), rng.normal(size=(n, 3)), rng.random((n, 3))
+        t_new, w_new, rn_new = rng.random(g), rng.normal(size=(g, 3)), rng.random((g, 3))
+        for noise in (rn_new, np.zeros((0, 3))):
+            out = fk.append_intervals(tg, wg, rn, t_new, w_new, noise)
+            ref_noise = noise if len(noise) else np.zeros((g, 3))
+            for a, b in zip(out, (np.concatenate([tg, t_new]), np.concatenate([wg, w_new]),
+                                  np.concatenate([rn, ref_noise]))):
+                _same(a, b)
+    for values in (np.array([1.0, 2.0, 3.0]), np.array([1.0, 0.0, 3.0]), np.array([1.0, np.nan]),
+                   np.array([2.0, -1e-300]), np.zeros(0), rng.normal(size=50)):
+        assert sk.any_nonpositive(values) == bool((values <= 0).any())

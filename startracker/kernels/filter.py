@@ -15,8 +15,13 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
 - :func:`saturated_rate_noise`: which gyro readings are saturated, and the process noise they get;
 - :func:`innovation_window`: the innovation monitor's statistics (spread and mean of the innovations over the
   window, the newest delivery's mean and its largest NIS);
-- :func:`timing_statistic`: the timing test of a delivery along the body rate, before it is fused;
-- :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped).
+- :func:`timing_statistic`: the timing test of a delivery along the body rate, before it is fused, and
+  :func:`fuse_frame_timed`: the test against the prediction, then the fusion when it passes, in one call;
+- :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped), and
+  :func:`gyro_jump_looks`: its two looks of a span (its own window, then the previous span's again) in one call;
+- :func:`append_intervals`: the delayed fusion's gyro buffer with a span's intervals appended;
+- :func:`delivery_rows` / :func:`delivery_counts`: a delivery's samples made unit (and whether they are in time
+  order), and its tallies after fusion (the last accepted sample, wrong and confidently wrong samples).
 
 The module is over 600 lines because it is one room: what the onboard filter computes, the fusion of a frame and
 the statistics of the monitors that judge its inputs (innovations, saturated readings, gyro steps), compiled
@@ -31,7 +36,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
-           "innovation_window", "timing_statistic", "saturated_rate_noise", "gyro_jump_statistic"]
+           "innovation_window", "timing_statistic", "fuse_frame_timed", "saturated_rate_noise", "gyro_jump_statistic",
+           "gyro_jump_looks", "delivery_rows", "delivery_counts", "append_intervals"]
 
 
 @njit(cache=True)
@@ -732,3 +738,221 @@ def gyro_jump_statistic(y, m, den, first, sigma2, delta_out):
             delta_out[1] = s1 / d
             delta_out[2] = s2 / d
     return t_max, j_max
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def delivery_rows(qm, tm):
+    """A delivery's attitudes made unit, and whether its instants are in time order.
+
+    Each row is divided by its norm ``√(((q₀² + q₁²) + q₂²) + q₃²)``, numpy's ``q / norm(q, axis=1)[:, None]``
+    arithmetic (the same operations in the same order), so the rows are its own bit for bit.
+
+    Parameters
+    ----------
+    qm : ndarray, shape (M, 4)
+        Attitude samples (w, x, y, z), non-zero.
+    tm : ndarray, shape (M,)
+        Their instants, s.
+
+    Returns
+    -------
+    q_unit : ndarray, shape (M, 4)
+        ``qm`` row by row over its norm (a new array).
+    in_order : bool
+        Whether ``tm`` is non-decreasing.
+    """
+    m = qm.shape[0]
+    out = np.empty((m, 4))
+    for i in range(m):
+        s = qm[i, 0] * qm[i, 0] + qm[i, 1] * qm[i, 1]
+        s = s + qm[i, 2] * qm[i, 2]
+        s = s + qm[i, 3] * qm[i, 3]
+        n = math.sqrt(s)
+        for c in range(4):
+            out[i, c] = qm[i, c] / n
+    in_order = True
+    for i in range(1, tm.shape[0]):
+        if tm[i] < tm[i - 1]:
+            in_order = False
+            break
+    return out, in_order
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def delivery_counts(accepted, wrong):
+    """A fused delivery's tallies: its last accepted sample, its wrong and its confidently wrong samples.
+
+    Parameters
+    ----------
+    accepted : ndarray of bool, shape (M,)
+        Which samples the filter accepted.
+    wrong : ndarray of bool, shape (M,)
+        Which samples the verdict found wrong.
+
+    Returns
+    -------
+    last_accepted : int
+        Index of the last accepted sample (-1 when none was).
+    n_wrong : int
+        Wrong samples.
+    n_confidently_wrong : int
+        Wrong samples the filter accepted.
+    """
+    last = -1
+    n_wrong = 0
+    n_confident = 0
+    for i in range(accepted.shape[0]):
+        if accepted[i]:
+            last = i
+        if wrong[i]:
+            n_wrong += 1
+            if accepted[i]:
+                n_confident += 1
+    return last, n_wrong, n_confident
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def gyro_jump_looks(prev2, prev, cur, m1, den1, first1, m2, den2, first2, sigma2, chi2_max, delta_out):
+    """The gyro jump monitor's two looks of a span, in one call: :func:`gyro_jump_statistic` over the previous and
+    this span's readings; when it finds no step beyond ``chi2_max``, over the span before, the previous and this one
+    (the second look at the previous span), unless ``m2`` is empty.
+
+    Parameters
+    ----------
+    prev2, prev, cur : ndarray, shape (n2, 3), (n1, 3), (n0, 3)
+        Readings of the span before the previous one, the previous one and this one, rad/s.
+    m1, den1, first1 : ndarray (n1 + n0, n1 + n0), ndarray (n1 + n0,), int
+        The first look's design (see :func:`gyro_jump_statistic`).
+    m2, den2, first2 : ndarray (n2 + n1 + n0, n2 + n1 + n0), ndarray (n2 + n1 + n0,), int
+        The second look's design; ``m2`` of shape (0, 0): no second look.
+    sigma2 : float
+        Per-axis variance of one reading's noise, (rad/s)².
+    chi2_max : float
+        A look finds a step when its largest statistic is not below or at this (NaN finds one).
+    delta_out : ndarray, shape (3,)
+        Output: the step's estimate of the look that found it, rad/s.
+
+    Returns
+    -------
+    look : int
+        1: the first look found a step, 2: the second, 0: none.
+    j : int
+        The step's reading in that look's window (the last look's best candidate when none found one, -1 for none).
+    """
+    n2, n1, n0 = prev2.shape[0], prev.shape[0], cur.shape[0]
+    y = np.empty((n1 + n0, 3))
+    for g in range(n1):
+        for a in range(3):
+            y[g, a] = prev[g, a]
+    for g in range(n0):
+        for a in range(3):
+            y[n1 + g, a] = cur[g, a]
+    t_max, j = gyro_jump_statistic(y, m1, den1, first1, sigma2, delta_out)
+    if j >= 0 and not t_max <= chi2_max:
+        return 1, j
+    if m2.shape[0] == 0:
+        return 0, j
+    y2 = np.empty((n2 + n1 + n0, 3))
+    for g in range(n2):
+        for a in range(3):
+            y2[g, a] = prev2[g, a]
+    for g in range(n1 + n0):
+        for a in range(3):
+            y2[n2 + g, a] = y[g, a]
+    d2 = np.zeros(3)
+    t_max, j = gyro_jump_statistic(y2, m2, den2, first2, sigma2, d2)
+    if j >= 0 and not t_max <= chi2_max:
+        delta_out[0], delta_out[1], delta_out[2] = d2[0], d2[1], d2[2]
+        return 2, j
+    return 0, j
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def fuse_frame_timed(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last,
+                     rate_noise, nis_out, z_out, s_out, u, timing_chi2_max, loose_ratio):
+    """A delivery's timing test, then its fusion when the test passes: one call for the two.
+
+    First each sample's innovation against the prediction with no update in between (:func:`fuse_frame` on copies
+    of ``q``, ``b``, ``P`` with a gate below every NIS) and their :func:`timing_statistic` along ``u``; then, unless
+    the statistic is above ``timing_chi2_max``, :func:`fuse_frame` of the samples on ``q``, ``b``, ``P`` in place.
+    The same operations as the three calls one after the other.
+
+    Parameters
+    ----------
+    q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last, rate_noise, nis_out, z_out, s_out :
+        As :func:`fuse_frame` (M >= 1); left unchanged when the test fails.
+    u : ndarray, shape (3,)
+        Unit vector of the body rate (body frame).
+    timing_chi2_max : float
+        The timing test's threshold: above it the delivery is not fused.
+    loose_ratio : float
+        As :func:`timing_statistic`.
+
+    Returns
+    -------
+    statistic : float
+        The timing statistic (χ²(1) without a timing error).
+    loose : bool
+        Whether the prediction was too loose for the test to vouch for the delivery.
+    fused : bool
+        Whether the samples were fused (the statistic was not above ``timing_chi2_max``).
+    t_end : float
+        As :func:`fuse_frame` (``t_s`` when not fused).
+    n_accepted, n_propagations : int
+        As :func:`fuse_frame` (0 when not fused).
+    """
+    m = qm.shape[0]
+    z = np.empty((m, 3))
+    s = np.empty((m, 3, 3))
+    fuse_frame(q.copy(), b.copy(), P.copy(), t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, -1.0,
+               np.empty(m, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3), rate_noise, np.empty(m),
+               z, s)
+    stat, loose = timing_statistic(u, z, s, rs, loose_ratio)
+    if stat > timing_chi2_max:
+        return stat, loose, False, t_s, 0, 0
+    t, n_acc, n_prop = fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd,
+                                  z_last, rate_noise, nis_out, z_out, s_out)
+    return stat, loose, True, t, n_acc, n_prop
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def append_intervals(tg, wg, rn, t_new, w_new, rn_new):
+    """The gyro buffer of :class:`startracker.filter.DelayedFusion` with G intervals appended (new arrays: the
+    ``np.concatenate`` of each pair, values copied as they are).
+
+    Parameters
+    ----------
+    tg : ndarray, shape (n,)
+        Buffered interval ends, s.
+    wg : ndarray, shape (n, 3)
+        Their rates, rad/s.
+    rn : ndarray, shape (n, 3)
+        Their extra rate noise, rad²/s.
+    t_new : ndarray, shape (G,)
+        Ends of the new intervals, s.
+    w_new : ndarray, shape (G, 3)
+        Their rates, rad/s.
+    rn_new : ndarray, shape (G, 3) or (0, 3)
+        Their extra rate noise, rad²/s; (0, 3): zero.
+
+    Returns
+    -------
+    tg, wg, rn : ndarray, shape (n + G,), (n + G, 3), (n + G, 3)
+    """
+    n = tg.shape[0]
+    g = t_new.shape[0]
+    tg2 = np.empty(n + g)
+    wg2 = np.empty((n + g, 3))
+    rn2 = np.empty((n + g, 3))
+    for i in range(n):
+        tg2[i] = tg[i]
+        for a in range(3):
+            wg2[i, a] = wg[i, a]
+            rn2[i, a] = rn[i, a]
+    zero_noise = rn_new.shape[0] == 0
+    for i in range(g):
+        tg2[n + i] = t_new[i]
+        for a in range(3):
+            wg2[n + i, a] = w_new[i, a]
+            rn2[n + i, a] = 0.0 if zero_noise else rn_new[i, a]
+    return tg2, wg2, rn2

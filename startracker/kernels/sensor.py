@@ -15,7 +15,7 @@ from startracker.kernels.algebra import mahalanobis3
 from startracker.kernels.rotations import interpolate_rows, normalize_rows, relative_rotvec_rows
 
 __all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2", "smooth_instants", "accept_instants",
-           "wrong_sample_flags", "rate_difference", "rate_at"]
+           "wrong_sample_flags", "rate_difference", "rate_at", "any_nonpositive"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -434,3 +434,22 @@ def accept_instants(sel, t_exp, q_pred, q_all, cov_all, rms_arcsec, n_stars, gat
                 for b in range(3):
                     cov[k, a, b] *= factor[k]
     return sel.shape[0] - m, kept, t_s, q, cov, n
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def any_nonpositive(values):
+    """Whether any value is ``<= 0`` (NaN is not): ``(values <= 0).any()`` in one pass, for the unit's test of a frame's
+    detection intensities (:meth:`startracker.onboard.StarTrackerUnit.process_frame`).
+
+    Parameters
+    ----------
+    values : ndarray, shape (n,)
+
+    Returns
+    -------
+    bool
+    """
+    for i in range(values.shape[0]):
+        if values[i] <= 0:
+            return True
+    return False

@@ -560,3 +560,26 @@ def test_sparse_pixel_set_deduplicates_and_gathers_each_pixels_prnu():
     out = sparse_pixel_set(opt_lin, opt_val, opt_src, 2.0, empty_i, empty_f, empty_i, empty_i, empty_f, 30,
                            empty_i, 30, n_cols, n_rows, np.zeros(n_px, dtype=np.int32), np.zeros(0, dtype=np.float32))
     assert len(out[8]) == 0
+
+
+def test_split_pixel_index_is_divmod():
+    """split_pixel_index equals divmod(px, n_cols) for every pixel of several detectors, including the multiples of
+    n_cols where the floating-point guess of the quotient falls one short (e.g. 49 · (1/49) < 1)."""
+    from numba import njit
+
+    from startracker.kernels.imaging import split_pixel_index
+
+    @njit
+    def split_all(px, n_cols):
+        out = np.empty((len(px), 2), dtype=np.int64)
+        for i in range(len(px)):
+            out[i, 0], out[i, 1] = split_pixel_index(px[i], n_cols, 1.0 / n_cols)
+        return out
+
+    rng = np.random.default_rng(2)
+    assert 49 * (1.0 / 49) < 1.0  # the guess alone would be wrong here
+    for n_cols, n_rows in ((49, 37), (1, 10), (7, 1000), (2048, 2048), (4095, 3000), (5000, 5000)):
+        n_px = n_cols * n_rows
+        px = np.concatenate([np.arange(min(n_px, 20000)), np.arange(n_rows) * n_cols,
+                             np.arange(1, n_rows + 1) * n_cols - 1, rng.integers(0, n_px, 20000)]).astype(np.int64)
+        np.testing.assert_array_equal(split_all(px, n_cols), np.stack(np.divmod(px, n_cols), 1))

@@ -27,6 +27,7 @@ __all__ = [
     "place_false_pixels",
     "lookup_pixels",
     "spots_from_paths",
+    "split_pixel_index",
 ]
 
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
@@ -67,6 +68,24 @@ def normal_isf(q):
         u = -e * math.sqrt(2.0 * math.pi) * math.exp(0.5 * t * t)  # −e / Q'(t)
         t = t - u / (1.0 + 0.5 * t * u)
     return t
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def split_pixel_index(px, n_cols, inv_cols):
+    """Row and column of a linear pixel index, exactly ``divmod(px, n_cols)`` for ``px >= 0`` (int, int).
+
+    The quotient is guessed from the product with ``inv_cols = 1.0 / n_cols`` (off by at most one) and corrected
+    in integers: a hardware integer division by a run-time divisor costs several times more, once per pixel.
+    """
+    r = np.int64(px * inv_cols)
+    c = px - r * n_cols
+    if c < 0:
+        r -= 1
+        c += n_cols
+    elif c >= n_cols:
+        r += 1
+        c -= n_cols
+    return r, c
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
@@ -553,9 +572,9 @@ def sparse_pixels_to_dn(intensified, spot_e, prnu_u, lin, z, charge_e, direct_e,
     base_var = dark_e + read_var_e2
     has_prnu = len(prnu_u) > 0
     g2 = gain_e_per_dn * gain_e_per_dn
+    inv_cols = 1.0 / n_cols
     for i in range(u):
-        r = lin[i] // n_cols
-        c = lin[i] - r * n_cols
+        r, c = split_pixel_index(lin[i], n_cols, inv_cols)
         o = max(opt0 + opt_dx * (c - cx) + opt_dy * (r - cy), 0.0)
         q_bg = gain * o
         mean[i] = (q_bg + dark_e) / gain_e_per_dn + bias_dn

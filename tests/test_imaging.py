@@ -506,7 +506,7 @@ def test_sparse_pixel_kernel_gives_the_background_and_the_noisy_dn_of_each_pixel
     thr_ref = mean_ref + k * np.sqrt((enf2_c * q_bg + dark_e + read_var + (prnu_sigma * q_bg) ** 2) / g_dn**2 + 1 / 12)
     f = 1.0 + prnu[lin].astype(np.float64)
     for intensified in (True, False):
-        dn, mean, thr = sparse_pixels_to_dn(intensified, spot, prnu, lin, z, charge, direct, hot_u, hot_e, hot_z,
+        dn, mean, thr = sparse_pixels_to_dn(intensified, spot, prnu[lin], lin, z, charge, direct, hot_u, hot_e, hot_z,
                                             false_u, false_dn, n_cols, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c,
                                             dark_e, read_var, prnu_sigma, full_well, g_dn, bias, adc_max, k)
         assert dn.dtype == np.float32
@@ -528,3 +528,58 @@ def test_sparse_pixel_kernel_gives_the_background_and_the_noisy_dn_of_each_pixel
         if intensified:
             assert np.all(dn[:3] == full_well / g_dn + bias)  # clipped at the full well
         assert dn[7] == 151.0 and dn[60] == 163.0
+
+
+def test_sparse_pixel_set_deduplicates_and_gathers_each_pixels_prnu():
+    """sparse_pixel_set: the distinct pixels in order of first appearance (as numpy's unique gives them), the index
+    buffer pointing back at them, the entries' compact ids, and each pixel's PRNU gathered from the map, whether the
+    buffer and the map are separate arrays or the two columns of one interleaved array (as render_sparse passes)."""
+    from startracker.kernels.imaging import sparse_pixel_set
+
+    rng = np.random.default_rng(5)
+    n_cols, n_rows = 60, 45
+    n_px = n_cols * n_rows
+    opt_lin = rng.integers(0, n_px, 700)  # with repeats: overlapping windows
+    opt_val = rng.uniform(0, 50, 700)
+    opt_src = rng.integers(0, 30, 700)
+    prnu = (0.03 * rng.standard_normal(n_px)).astype(np.float32)
+    _, first = np.unique(opt_lin, return_index=True)
+    ref_uniq = opt_lin[np.sort(first)]
+    empty_i, empty_f = np.zeros(0, dtype=np.int64), np.zeros(0)
+    pair = np.zeros((n_px, 2), dtype=np.int32)
+    pair.view(np.float32)[:, 1] = prnu
+    for buf, pmap in ((np.full(n_px, 7, dtype=np.int32), prnu), (pair[:, 0], pair.view(np.float32)[:, 1])):
+        out = sparse_pixel_set(opt_lin, opt_val, opt_src, 2.0, empty_i, empty_f, empty_i, empty_i, empty_f, 30,
+                               empty_i, 30, n_cols, n_rows, buf, pmap)
+        uniq, inv, prnu_u = out[0], out[1], out[8]
+        np.testing.assert_array_equal(uniq, ref_uniq)
+        np.testing.assert_array_equal(uniq[inv], opt_lin)
+        np.testing.assert_array_equal(buf[uniq], np.arange(len(uniq)))
+        assert prnu_u.dtype == np.float32
+        np.testing.assert_array_equal(prnu_u, prnu[uniq])
+    out = sparse_pixel_set(opt_lin, opt_val, opt_src, 2.0, empty_i, empty_f, empty_i, empty_i, empty_f, 30,
+                           empty_i, 30, n_cols, n_rows, np.zeros(n_px, dtype=np.int32), np.zeros(0, dtype=np.float32))
+    assert len(out[8]) == 0
+
+
+def test_split_pixel_index_is_divmod():
+    """split_pixel_index equals divmod(px, n_cols) for every pixel of several detectors, including the multiples of
+    n_cols where the floating-point guess of the quotient falls one short (e.g. 49 · (1/49) < 1)."""
+    from numba import njit
+
+    from startracker.kernels.imaging import split_pixel_index
+
+    @njit
+    def split_all(px, n_cols):
+        out = np.empty((len(px), 2), dtype=np.int64)
+        for i in range(len(px)):
+            out[i, 0], out[i, 1] = split_pixel_index(px[i], n_cols, 1.0 / n_cols)
+        return out
+
+    rng = np.random.default_rng(2)
+    assert 49 * (1.0 / 49) < 1.0  # the guess alone would be wrong here
+    for n_cols, n_rows in ((49, 37), (1, 10), (7, 1000), (2048, 2048), (4095, 3000), (5000, 5000)):
+        n_px = n_cols * n_rows
+        px = np.concatenate([np.arange(min(n_px, 20000)), np.arange(n_rows) * n_cols,
+                             np.arange(1, n_rows + 1) * n_cols - 1, rng.integers(0, n_px, 20000)]).astype(np.int64)
+        np.testing.assert_array_equal(split_all(px, n_cols), np.stack(np.divmod(px, n_cols), 1))

@@ -383,7 +383,7 @@ def detections_from_sparse(sf, method: str = "com", *, min_area_px: int = 1, psf
         psf_sigma_px = check_psf_sigma(psf_sigma_px)
     n_rows, n_cols = sf.shape
     xy, inten, area, sat, peak, snr, o = detect_sparse(
-        sf.lin, sf.dn.astype(np.float64), sf.background_dn, sf.threshold_dn, float(sf.saturation_dn),
+        sf.lin, sf.dn, sf.background_dn, sf.threshold_dn, float(sf.saturation_dn),
         float(sf.k_sigma), int(n_rows), int(n_cols), sf.buffer(), method == "gaussian",
         float("nan") if psf_sigma_px is None else float(psf_sigma_px), int(min_area_px), sf.entry_pixel,
         sf.entry_source, sf.entry_e)

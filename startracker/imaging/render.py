@@ -229,36 +229,48 @@ def render_expected(scene: Scene, model: SensorModel, *, include_background: boo
 
 # ----------------------------------------------------------------------------------- sparse frame
 class _PixelIndex:
-    """Sort-free deduplication of linear pixel indices with a persistent int32 buffer.
+    """Sort-free deduplication of linear pixel indices with a persistent int32 buffer, interleaved with the
+    detector's PRNU map.
 
     The buffer is never cleared: a lookup is valid only if the stored compact id points back to the same
-    pixel (the 'sparse set' trick). One buffer per detector size is shared by all frames of the process
-    (not thread-safe); a frame that finds the buffer taken over by a later frame rewrites its own ids
-    (O(U)) before looking up.
+    pixel (the 'sparse set' trick). One buffer per detector (size and PRNU map) is shared by all frames of the
+    process (not thread-safe); a frame that finds the buffer taken over by a later frame rewrites its own ids
+    (O(U)) before looking up. The buffer and the PRNU are the two int32/float32 columns of one (n_px, 2) array
+    (built once per detector): a window row's lookup fetches its PRNU in the same cache line, where two separate
+    16 MB maps cost two misses per row (:func:`startracker.kernels.imaging.sparse_pixel_set`).
     """
 
     _buffers: dict = {}
     _owner: dict = {}
 
-    def __init__(self, n_px: int):
-        buf = self._buffers.get(n_px)
-        if buf is None:
-            buf = np.zeros(n_px, dtype=np.int32)
-            self._buffers[n_px] = buf
+    def __init__(self, n_px: int, prnu: np.ndarray | None = None):
+        key = (n_px, None if prnu is None else id(prnu))
+        hit = self._buffers.get(key)
+        if hit is None or hit[0] is not prnu:
+            pair = np.zeros((n_px, 2), dtype=np.int32)
+            if prnu is not None:
+                pair.view(np.float32)[:, 1] = prnu
+            if len(self._buffers) > 8:  # stale detectors (their PRNU maps dropped from the fixed-pattern cache)
+                self._buffers.clear()
+                self._owner.clear()
+            hit = (prnu, pair[:, 0], _NO_PRNU if prnu is None else pair.view(np.float32)[:, 1])
+            self._buffers[key] = hit
+        self.key = key
         self.n_px = n_px
-        self.buf = buf
+        self.buf = hit[1]
+        self.prnu = hit[2]
         self.uniq = np.zeros(0, dtype=np.int64)
 
     def adopt(self, uniq: np.ndarray) -> None:
         """Record ``uniq`` as this frame's pixels (the caller has just written ``buf[uniq] = arange``)."""
         self.uniq = uniq
-        self._owner[self.n_px] = self
+        self._owner[self.key] = self
 
     def claimed(self) -> np.ndarray:
         """The buffer, holding this frame's compact ids (rewritten if a later frame took it over)."""
-        if self._owner.get(self.n_px) is not self:
+        if self._owner.get(self.key) is not self:
             self.buf[self.uniq] = np.arange(len(self.uniq), dtype=np.int32)
-            self._owner[self.n_px] = self
+            self._owner[self.key] = self
         return self.buf
 
     def contains(self, lin: np.ndarray) -> np.ndarray:
@@ -323,8 +335,9 @@ class SparseFrame:
         return self._rows_cols[1]
 
     def buffer(self) -> np.ndarray:
-        """The index buffer of the detector, int32 (n_rows * n_cols,), holding ``buffer()[lin[i]] == i`` for this
-        frame's pixels (other entries are stale): for kernels that look pixels up."""
+        """The index buffer of the detector, int32 (n_rows * n_cols,) (a strided view: its other column holds the
+        PRNU), holding ``buffer()[lin[i]] == i`` for this frame's pixels (other entries are stale): for kernels that
+        look pixels up."""
         return self._index.claimed()
 
     def linear_ids(self, lin: np.ndarray) -> np.ndarray:
@@ -464,15 +477,15 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         f_lin, f_dn = empty_i, empty_f
     n_false = len(f_lin)
 
-    index = _PixelIndex(n_px)
-    uniq, inv, all_src, all_exp, spot_u, dir_u, hot_u, false_u = sparse_pixel_set(
+    index = _PixelIndex(n_px, prnu)
+    uniq, inv, all_src, all_exp, spot_u, dir_u, hot_u, false_u, prnu_u = sparse_pixel_set(
         o_lin, o_val, o_src, 1.0 if model.intensified else g, d_lin, d_val, d_src, hot_idx,
-        np.asarray(hot_e_all, dtype=np.float64), q0, f_lin, q1, n_cols, n_rows, index.buf)
+        np.asarray(hot_e_all, dtype=np.float64), q0, f_lin, q1, n_cols, n_rows, index.buf, index.prnu)
     index.adopt(uniq)
     # background, DN and the crossings' values in one compiled pass over the pixels
     z, charge, hot_z = _draw_pixel_noise(spot_u, model, rng, len(hot_u))
     dn, mean_dn_u, thr_dn_u = sparse_pixels_to_dn(
-        bool(model.intensified), spot_u, _NO_PRNU if prnu is None else prnu, uniq, z, charge, dir_u, hot_u,
+        bool(model.intensified), spot_u, prnu_u, uniq, z, charge, dir_u, hot_u,
         np.asarray(hot_e_all, dtype=np.float64), hot_z, false_u, f_dn, n_cols, float(bg.opt0), float(bg.opt_dx),
         float(bg.opt_dy), float(bg.cx), float(bg.cy), float(bg.gain), float(bg.enf2_c), float(bg.dark_e),
         float(bg.read_var_e2), float(bg.prnu_sigma), float(model.full_well_e), float(model.gain_e_per_dn),

@@ -297,7 +297,8 @@ def detect_sparse(lin, dn, background_dn, threshold_dn, saturation_dn, k_sigma, 
     lin : ndarray of int64, shape (U,)
         The frame's pixels (``buf[lin[i]] == i``).
     dn, background_dn, threshold_dn : ndarray, shape (U,)
-        Pixel values, expected background, detection threshold, DN (a pixel is detected when ``dn > threshold``).
+        Pixel values (float32 as rendered, or float64), expected background, detection threshold, DN (a pixel is
+        detected when ``dn > threshold``).
     saturation_dn, k_sigma : float
     n_rows, n_cols : int
     buf : ndarray of int32, shape (n_rows * n_cols,)

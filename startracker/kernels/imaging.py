@@ -27,6 +27,7 @@ __all__ = [
     "place_false_pixels",
     "lookup_pixels",
     "spots_from_paths",
+    "split_pixel_index",
 ]
 
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
@@ -67,6 +68,24 @@ def normal_isf(q):
         u = -e * math.sqrt(2.0 * math.pi) * math.exp(0.5 * t * t)  # −e / Q'(t)
         t = t - u / (1.0 + 0.5 * t * u)
     return t
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def split_pixel_index(px, n_cols, inv_cols):
+    """Row and column of a linear pixel index, exactly ``divmod(px, n_cols)`` for ``px >= 0`` (int, int).
+
+    The quotient is guessed from the product with ``inv_cols = 1.0 / n_cols`` (off by at most one) and corrected
+    in integers: a hardware integer division by a run-time divisor costs several times more, once per pixel.
+    """
+    r = np.int64(px * inv_cols)
+    c = px - r * n_cols
+    if c < 0:
+        r -= 1
+        c += n_cols
+    elif c >= n_cols:
+        r += 1
+        c -= n_cols
+    return r, c
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
@@ -337,12 +356,16 @@ def _add_3x3(centres, n_cols, n_rows, src0, centre_e, lin, src, exp_e, n):
 
 @njit(cache=True, no_cfunc_wrapper=True)
 def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val, dir_src, hot_lin, hot_e, hot_src0,
-                     false_lin, false_src0, n_cols, n_rows, buf):
-    """The deduplicated pixels of a sparse frame and its entries (window pixels, 3×3 neighbourhoods).
+                     false_lin, false_src0, n_cols, n_rows, buf, prnu):
+    """The deduplicated pixels of a sparse frame and its entries (window pixels, 3×3 neighbourhoods), with each
+    pixel's PRNU gathered.
 
     Entries come in this order: optical windows, cosmic-ray windows, hot pixels' 3×3, background crossings' 3×3.
     Deduplication uses ``buf`` as a sparse set: it is never cleared, ``buf[lin]`` is trusted only when it points
-    back to the same pixel. On return ``buf[uniq[i]] == i``.
+    back to the same pixel. On return ``buf[uniq[i]] == i``. The PRNU of a pixel is read when the pixel is first
+    seen: with ``buf`` and ``prnu`` the two columns of one interleaved (n_px, 2) array (as
+    :func:`startracker.imaging.render_sparse` passes them) that read hits the cache line the lookup just fetched,
+    instead of a second miss per window row in the 16 MB map later.
 
     Parameters
     ----------
@@ -358,7 +381,9 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
         Distinct background threshold crossings; source ids from false_src0.
     n_cols, n_rows : int
     buf : ndarray of int32, shape (n_rows * n_cols,)
-        Persistent index buffer (modified).
+        Persistent index buffer (modified; may be a strided view).
+    prnu : ndarray of float32, shape (n_rows * n_cols,) or (0,)
+        The detector's PRNU map (relative gain − 1; may be a strided view), none when empty.
 
     Returns
     -------
@@ -376,6 +401,8 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
         Compact id of each hot pixel.
     false_u : ndarray of int64, shape (F,)
         Compact id of each crossing, −1 where it fell on a window (optical, cosmic-ray or hot) pixel.
+    prnu_u : ndarray of float32, shape (U,) or (0,)
+        ``prnu[uniq]`` (empty when ``prnu`` is).
     """
     n1 = len(opt_lin)
     n2 = len(dir_lin)
@@ -396,6 +423,8 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
     n = _add_3x3(false_lin, n_cols, n_rows, false_src0, np.ones(len(false_lin)), lin, src, exp_e, n)
     uniq = np.empty(n, dtype=np.int64)
     inv = np.empty(n, dtype=np.int64)
+    has_prnu = len(prnu) > 0
+    prnu_all = np.empty(n if has_prnu else 0, dtype=np.float32)
     n_u = 0
     n_u_base = 0
     for e in range(n):
@@ -408,6 +437,8 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
         else:
             buf[px] = n_u
             uniq[n_u] = px
+            if has_prnu:
+                prnu_all[n_u] = prnu[px]
             inv[e] = n_u
             n_u += 1
     if n == n_base:
@@ -429,7 +460,8 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
     for e in range(n_base, n):
         if false_u[src[e] - false_src0] < 0:
             exp_e[e] = 0.0
-    return uniq[:n_u].copy(), inv[:n], src[:n], exp_e[:n], spot_u, direct_u, hot_u, false_u
+    return (uniq[:n_u].copy(), inv[:n], src[:n], exp_e[:n], spot_u, direct_u, hot_u, false_u,
+            prnu_all[:n_u].copy() if has_prnu else prnu_all)
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -503,8 +535,8 @@ def _digitise(e, full_well_e, inv_gain, bias_dn, adc_max_dn):
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
-def sparse_pixels_to_dn(intensified, spot_e, prnu, lin, z, charge_e, direct_e, hot_u, hot_e, hot_z, false_u, false_dn,
-                        n_cols, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2, prnu_sigma,
+def sparse_pixels_to_dn(intensified, spot_e, prnu_u, lin, z, charge_e, direct_e, hot_u, hot_e, hot_z, false_u,
+                        false_dn, n_cols, opt0, opt_dx, opt_dy, cx, cy, gain, enf2_c, dark_e, read_var_e2, prnu_sigma,
                         full_well_e, gain_e_per_dn, bias_dn, adc_max_dn, k_sigma):
     """The pixels of a sparse frame in one pass: their expected background (the plane of
     :class:`startracker.imaging.BackgroundField`: optical photoelectrons, level, threshold), their random DN
@@ -512,8 +544,10 @@ def sparse_pixels_to_dn(intensified, spot_e, prnu, lin, z, charge_e, direct_e, h
 
     Parameters
     ----------
-    intensified, spot_e, prnu, lin, z, charge_e, direct_e, hot_u, hot_e, hot_z
+    intensified, spot_e, lin, z, charge_e, direct_e, hot_u, hot_e, hot_z
         As in :func:`pixels_to_dn`, shape (U,) (``hot_*`` (H,)).
+    prnu_u : ndarray of float32, shape (U,) or (0,)
+        The PRNU of each pixel (``prnu[lin]``, as gathered by :func:`sparse_pixel_set`), none when empty.
     false_u : ndarray of int64, shape (F,)
         Compact id of each background crossing, −1 where it fell on a window pixel (:func:`sparse_pixel_set`).
     false_dn : ndarray, shape (F,)
@@ -536,17 +570,17 @@ def sparse_pixels_to_dn(intensified, spot_e, prnu, lin, z, charge_e, direct_e, h
     mean = np.empty(u)
     thr = np.empty(u)
     base_var = dark_e + read_var_e2
-    has_prnu = len(prnu) > 0
+    has_prnu = len(prnu_u) > 0
     g2 = gain_e_per_dn * gain_e_per_dn
+    inv_cols = 1.0 / n_cols
     for i in range(u):
-        r = lin[i] // n_cols
-        c = lin[i] - r * n_cols
+        r, c = split_pixel_index(lin[i], n_cols, inv_cols)
         o = max(opt0 + opt_dx * (c - cx) + opt_dy * (r - cy), 0.0)
         q_bg = gain * o
         mean[i] = (q_bg + dark_e) / gain_e_per_dn + bias_dn
         var = enf2_c * q_bg + dark_e + read_var_e2 + (prnu_sigma * q_bg) ** 2
         thr[i] = mean[i] + k_sigma * math.sqrt(var / g2 + 1.0 / 12.0)
-        f = 1.0 + np.float64(prnu[lin[i]]) if has_prnu else 1.0
+        f = 1.0 + np.float64(prnu_u[i]) if has_prnu else 1.0
         out[i] = _pixel_electrons(intensified, spot_e[i], q_bg, f, z[i], charge_e[i], enf2_c, dark_e,
                                   base_var) + direct_e[i]
     for h in range(len(hot_u)):

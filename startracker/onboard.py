@@ -190,36 +190,6 @@ def sample_nis_threshold(n_samples: int) -> float:
     return chi2_3_threshold(MONITOR_FALSE_ALARM_P / n_samples)
 
 
-def sum_pairwise(values) -> float:
-    """The sum of a short sequence of floats (at most 128) with numpy's own summation (``ndarray.sum`` of float64):
-    below 8 terms one after the other, else eight running sums added pairwise, then the rest one by one. The same
-    float as ``np.array(values).sum()``, without building the array (the monitor's window of 10 each delivery)."""
-    n = len(values)
-    if n < 8:
-        res = 0.0
-        for v in values:
-            res += v
-        return res
-    r0, r1, r2, r3, r4, r5, r6, r7 = values[:8]
-    i = 8
-    n8 = n - n % 8
-    while i < n8:
-        r0 += values[i]
-        r1 += values[i + 1]
-        r2 += values[i + 2]
-        r3 += values[i + 3]
-        r4 += values[i + 4]
-        r5 += values[i + 5]
-        r6 += values[i + 6]
-        r7 += values[i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += values[i]
-        i += 1
-    return res
-
-
 @functools.lru_cache(maxsize=1024)
 def _chi2_quantile_wilson_hilferty(dof: float, z: float) -> float:
     """χ²(dof) quantile at the standard-normal quantile ``z`` (Wilson-Hilferty; within 1 % for dof >= 3 here); the
@@ -656,9 +626,8 @@ class StarTrackerUnit:
                          np.zeros((MONITOR_DELIVERIES, 3, 3)))
         self._monitor_slot = 0
         self._monitor_filled = 0
-        # each delivery's timing statistic (χ²(1) each, 0: none) and whether it has one (1.0) or not (0.0), Python floats
-        self._timing = [0.0] * MONITOR_DELIVERIES
-        self._timing_n = [0.0] * MONITOR_DELIVERIES
+        self._timing = np.zeros(MONITOR_DELIVERIES)  # each delivery's timing statistic (χ²(1) each, 0: none)
+        self._timing_n = np.zeros(MONITOR_DELIVERIES)
         self._timing_last = (0.0, 0.0)  # the last delivery's timing statistic (see _timing_statistic)
         self._inconsistent = False
         self._timing_suspect = False
@@ -1105,8 +1074,8 @@ class StarTrackerUnit:
             # the frame's timestamps disagree with the gyro along the rate: fused, it would drag the estimate
             # (and the bias) by ω δt; it is refused and the estimate is invalid until the timing is quiet again
             self._timing_suspect = True
-            self._timing = [0.0] * MONITOR_DELIVERIES
-            self._timing_n = [0.0] * MONITOR_DELIVERIES
+            self._timing[:] = 0.0
+            self._timing_n[:] = 0.0
             self._monitor_filled = 0
             self._timing_alarms += 1
             self.fusion.last_innovation_rad = np.zeros((0, 3))
@@ -1165,8 +1134,8 @@ class StarTrackerUnit:
             self._monitor_slot)
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
-        n_timing = float(sum(self._timing_n))  # 0.0 / 1.0 each: exact in any order
-        timing_alarm = n_timing > 0 and sum_pairwise(self._timing) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
+        n_timing = float(self._timing_n.sum())  # ndarray.sum: np.sum's summation without its dispatch
+        timing_alarm = n_timing > 0 and float(self._timing.sum()) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
         # its samples' own NIS
         sample_alarm = MONITOR_SAMPLE_NIS and n_nis > 0 and max_nis > sample_nis_threshold(int(n_nis))
@@ -1180,8 +1149,8 @@ class StarTrackerUnit:
             fusion.start(ekf)  # its state changed: the estimate now is recomputed
             for a in ring:
                 a[:] = 0.0
-            self._timing = [0.0] * MONITOR_DELIVERIES
-            self._timing_n = [0.0] * MONITOR_DELIVERIES
+            self._timing[:] = 0.0
+            self._timing_n[:] = 0.0
             self._monitor_filled = 0
             self._inconsistent = True
             self._timing_suspect = self._timing_suspect or timing_alarm
@@ -1193,7 +1162,7 @@ class StarTrackerUnit:
         # one (its timing sum below χ²(n)'s median), not merely none strong enough to alarm again.
         if self._timing_suspect and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES and (
                 n_timing == 0
-                or sum_pairwise(self._timing) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
+                or float(self._timing.sum()) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
             self._timing_suspect = False
 
     def _rate_matters(self) -> bool:

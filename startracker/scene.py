@@ -37,7 +37,7 @@ import numpy as np
 
 from startracker.catalog import StarCatalog
 from startracker.optics import Camera
-from startracker.validation import as_float_array, check_int, check_positive
+from startracker.validation import as_float_array, build_checked, check_int, check_positive
 from startracker.kernels import scene as sk
 
 __all__ = [
@@ -449,8 +449,6 @@ def _evaluate_attitude(attitude, t: np.ndarray, validate: bool) -> np.ndarray:
 
 
 _CAMERA_CACHE: dict = {}
-_new_object = object.__new__
-_set_attribute = object.__setattr__
 
 
 def _camera_constants(camera: Camera):
@@ -628,13 +626,10 @@ def compute_scene(
             d_cam = np.einsum("tji,j->ti", r_cw_mid, np.asarray(b.direction_world))
             views.append(BrightBodyView(b.name, np.arccos(np.clip(d_cam[:, 2], -1.0, 1.0)), d_cam))
 
-    # the frozen Scene's fields set at once (its generated __init__ sets them one by one through object.__setattr__)
-    scene = _new_object(Scene)
-    _set_attribute(scene, "__dict__", {
+    return build_checked(Scene, {
         "camera": camera, "plan": plan, "t_frame_start": t0, "times": path_times[:, s // 2].copy(),
         "path_times": path_times, "star_index": idx, "hip": hip, "vmag": vmag, "bv": bv, "xy_path": xy_path,
         "visible": visible, "q_body_to_icrs": q_mid, "q_cam_to_icrs": q_cam_mid, "bright_bodies": tuple(views)})
-    return scene
 
 
 def scene_from_tracks(

@@ -57,7 +57,7 @@ from startracker.identify import METHODS as ID_METHODS
 from startracker.identify import IdentificationResult, identify
 from startracker.optics import Camera
 from startracker.rotations import quat_conjugate, quat_multiply, quat_normalize, quat_to_rotvec
-from startracker.validation import as_float_array, check_positive
+from startracker.validation import as_float_array, build_checked, check_positive
 from startracker.track import (
     MATCH_METHODS,
     camera_projection_model,
@@ -79,18 +79,6 @@ MODES = ("lost", "acquire", "track")
 
 _NO_FLUX = np.zeros(0)
 _NO_FLUX.setflags(write=False)
-
-
-_new_object = object.__new__
-_set_attribute = object.__setattr__
-
-
-def _built(cls, values: dict):
-    """An instance of the frozen dataclass ``cls`` (no ``__post_init__``) from ``values``, every field in declaration
-    order: its fields set at once (the generated ``__init__`` sets them one by one through ``object.__setattr__``)."""
-    obj = _new_object(cls)
-    _set_attribute(obj, "__dict__", values)
-    return obj
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -788,7 +776,7 @@ class StarTracker:
             n_ok = len(kept)
             skipped = tuple(sorted(set(range(len(t_exp))) - set(kept.tolist())))
             base["skipped"] = skipped
-        samples = [_built(AttitudeSample, {"t_s": t, "q_body_to_icrs": q, "covariance_rad2": c, "n_stars": n})
+        samples = [build_checked(AttitudeSample, {"t_s": t, "q_body_to_icrs": q, "covariance_rad2": c, "n_stars": n})
                    for t, q, c, n in zip(t_s.tolist(), q_sol, cov_sol, n_sol.tolist())]
         new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)
         status = f"tracking {n_ok}/{len(t_exp)} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
@@ -851,7 +839,7 @@ class StarTracker:
             alpha, cov_alpha = np.zeros(3), np.zeros((3, 3))
         lever = t_ref - t_m
         omega, cov_w = sensor_kernels.rate_at(w_m, cov_m, alpha, cov_alpha + self._var_proc, lever, lever**2)
-        return _built(MotionState, {"t_s": t_ref, "q_body_to_icrs": q_ref, "cov_theta_rad2": cov_ref,
+        return build_checked(MotionState, {"t_s": t_ref, "q_body_to_icrs": q_ref, "cov_theta_rad2": cov_ref,
                                     "omega_body": omega, "cov_omega": cov_w, "alpha_body": alpha,
                                     "cov_alpha": cov_alpha, "rate_meas": meas, "alpha_known": alpha_known})
 
@@ -882,7 +870,7 @@ class StarTracker:
     def _result(self, att: _Attempt, xy, t_exp, status=None, samples=None) -> FrameResult:
         text = att.status if status is None else (status if not att.ok else f"{status}; {att.status}")
         samples = samples if samples else []  # the attempt's own fresh list (nothing else holds it): no copy
-        return _built(FrameResult, {
+        return build_checked(FrameResult, {
             "mode": self._mode, "samples": samples, "n_matched": att.n_matched, "n_detections": len(xy),
             "matching_latency_ms": att.latency_ms, "update_rate_hz": len(samples) / self._dt_frame, "status": text,
             "n_exposures": len(t_exp), "n_predicted": att.n_predicted, "radius_px": att.radius_px,

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-__all__ = ["as_float_array", "check_positive", "check_real", "check_int", "check_choice", "check_rng"]
+__all__ = ["as_float_array", "check_positive", "check_real", "check_int", "check_choice", "check_rng", "build_checked"]
 
 
 def as_float_array(a, name: str, last_dim: int | None = None, ndim: int | None = None) -> np.ndarray:
@@ -111,3 +111,16 @@ def check_rng(rng, name: str = "rng") -> np.random.Generator:
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"{name} must be a numpy.random.Generator, got {type(rng).__name__}")
     return rng
+
+
+def build_checked(cls, fields: dict):
+    """An instance of the frozen dataclass ``cls`` from values already checked, every field in ``fields``.
+
+    The per-frame results (scenes, detections, samples, motion states) are built from values their producer has
+    checked; the dataclass's generated ``__init__`` would set each field through ``object.__setattr__``, one call
+    per field, every frame. Here the fields are set at once. ``cls`` must have no ``__post_init__`` and ``fields``
+    must hold every field (tests/test_sensor.py and tests/test_scene.py check the per-frame ones).
+    """
+    obj = object.__new__(cls)
+    object.__setattr__(obj, "__dict__", fields)
+    return obj

@@ -116,15 +116,3 @@ def test_count_wrong_samples_judges_only_samples_inside_the_truth_history():
     # the good sample, stamped 0.03 s late, is judged against the truth at 1.04 s: 0.03 s × 0.37 rad/s ≈ 2300″ off
     assert count_wrong_samples([good], np.array([0.03]), times, quats) == 1
     assert count_wrong_samples([good], np.array([0.0]), times, quats) == 0
-
-
-def test_sum_pairwise_is_numpys_float64_sum():
-    """The monitor's window sums in Python floats: the same float as ``ndarray.sum`` (numpy's pairwise summation)
-    for every length up to 128, on terms of mixed magnitudes where the order of the additions shows."""
-    from startracker.onboard import sum_pairwise
-
-    rng = np.random.default_rng(3)
-    for n in range(0, 129):
-        for _ in range(40):
-            a = rng.standard_normal(n) * rng.choice([1e-8, 1.0, 1e8], n)
-            assert sum_pairwise(a.tolist()) == float(a.sum())

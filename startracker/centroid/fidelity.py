@@ -44,7 +44,7 @@ from startracker.imaging import (
 )
 from startracker.kernels import centroid as ck
 from startracker.scene import Scene
-from startracker.validation import as_float_array, check_positive
+from startracker.validation import as_float_array, build_checked, check_positive
 
 __all__ = [
     "CentroidErrorModel",
@@ -195,8 +195,6 @@ def _star_pe_constants(model: SensorModel):
 
 
 _HOT_CACHE: dict = {}
-_new_object = object.__new__
-_set_attribute = object.__setattr__
 
 
 def _hot_pixels(model: SensorModel, resolution):
@@ -264,12 +262,9 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
         fo.cosmic_start_xy, fo.cosmic_end_xy, fo.cosmic_e, hot_idx, hot_rate, f_lin, f_dn,
         u, z, z_hot, _background_vector(bg), _sensor_vector(model), _factor_vector(err), float(k_sigma),
         n_cols, n_rows, _KINDS)
-    # the frozen Centroids' fields set at once (its generated __init__ sets them one by one through object.__setattr__)
-    det = _new_object(Centroids)
-    _set_attribute(det, "__dict__", {
+    return build_checked(Centroids, {
         "xy": xy, "intensity": inten, "area": area, "saturated": sat, "peak": peak, "snr": snr, "background_dn": bg_dn,
         "noise_dn": noise_dn, "truth_star": star, "truth_exposure": expo, "truth_kind": kind, "truth_xy": truth_xy})
-    return det
 
 
 def candidate_pairs(xy: np.ndarray, r: float) -> np.ndarray:

@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from startracker.kernels.kvector import stable_argsort
+
 __all__ = ["mutual_nearest", "register_to_green", "fuse_channels"]
 
 
@@ -263,7 +265,7 @@ def fuse_channels(xy_r, xy_g, xy_b, inten_r, inten_g, inten_b, area_r, area_g, a
         xy[a, 0] = sx / d
         xy[a, 1] = sy / d
         key[a] = -(it[a, 0] + it[a, 1] + it[a, 2])
-    order = np.argsort(key, kind="mergesort")
+    order = stable_argsort(key)  # the project's stable sort (numba's argsort compiles for seconds per caller)
     out_xy = np.empty((k, 2))
     out_it = np.empty((k, 3))
     out_idx = np.empty((k, 3), dtype=np.int64)

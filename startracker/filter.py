@@ -523,7 +523,6 @@ class DelayedFusion:
         self._wg = np.zeros((0, 3))
         self._rn = np.zeros((0, 3))
         self._now = None
-        self._intervals_hit = None  # the last _intervals_to: its instant, the buffers it read and its result
         # the propagation-only kernel call's fixed arguments, built once
         self._no_samples = (np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3)))
         self._scratch = (np.zeros(0, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3))
@@ -733,20 +732,12 @@ class DelayedFusion:
     def _intervals_to(self, t_last: float):
         """The buffered gyro intervals up to ``t_last``, the one covering it split at its instant: ``(wg, tg, rn, j)``
         with ``j`` the covering interval's index; ``(None, None, None, len)`` when no buffered interval reaches it."""
-        hit = self._intervals_hit
-        if (hit is not None and hit[0] == t_last and hit[1] is self._tg and hit[2] is self._wg
-                and hit[3] is self._rn):  # the timing test's, then the fusion's, of one delivery
-            return hit[4]
         j = int(self._tg.searchsorted(t_last, side="left"))
         if j == len(self._tg):
-            out = None, None, None, j
-        else:
-            tg = self._tg[: j + 1].copy()
-            tg[j] = t_last
-            out = self._wg[: j + 1], tg, self._rn[: j + 1], j
-        # the buffers are replaced, never changed in place: their identity keys the result (read only)
-        self._intervals_hit = (t_last, self._tg, self._wg, self._rn, out)
-        return out
+            return None, None, None, j
+        tg = self._tg[: j + 1].copy()
+        tg[j] = t_last
+        return self._wg[: j + 1], tg, self._rn[: j + 1], j
 
     def _held_rate(self) -> np.ndarray:
         """The filter's last gyro rate (bias included), (1, 3): what propagates when nothing is buffered."""

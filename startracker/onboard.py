@@ -651,7 +651,6 @@ class StarTrackerUnit:
         self._correction_before_jump = None  # the correction before a step found in the last span
         self._frame_latency_ms = 0.0
         self._frame_wall_ms = 0.0
-        self._cov_cache = None  # (P, key, covariance) of the last _protected_cov
 
     @property
     def ekf(self) -> AttitudeEKF | None:
@@ -1000,15 +999,7 @@ class StarTrackerUnit:
 
     def _protected_cov(self, P, t_s: float) -> np.ndarray:
         """The estimate's reported attitude covariance (3, 3), rad²: the filter's, plus the drift of a gyro bias change
-        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`).
-
-        Read only: kept for the next call on the same ``P`` (the filter's estimate now, which is recomputed into a new
-        array whenever it changes), time, last accepted sample and allowance (the verdict and :meth:`estimate` of
-        one span ask for it both)."""
-        key = (t_s, self._t_accepted, self.bias_allowance_rad_s)
-        hit = self._cov_cache
-        if hit is not None and hit[0] is P and hit[1] == key:
-            return hit[2]
+        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`)."""
         cov = P[:3, :3].copy()
         dt = t_s - self._t_accepted
         if dt > 0.0:
@@ -1016,7 +1007,6 @@ class StarTrackerUnit:
             cov[0, 0] += extra
             cov[1, 1] += extra
             cov[2, 2] += extra
-        self._cov_cache = (P, key, cov)
         return cov
 
     def _estimate_valid(self, P) -> bool:
@@ -1424,7 +1414,7 @@ class StarTrackerUnit:
         if self.fusion.ekf is None:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
         q, _, P, omega, t_s = self.fusion.current()
-        cov = self._protected_cov(P, t_s).copy()
+        cov = self._protected_cov(P, t_s)
         sig = math.sqrt(max(cov[0, 0], cov[1, 1], cov[2, 2]))
         return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(cov), cov)
 

@@ -194,22 +194,6 @@ def _star_pe_constants(model: SensorModel):
     return v
 
 
-_HOT_CACHE: dict = {}
-
-
-def _hot_pixels(model: SensorModel, resolution):
-    """``fixed_pattern(model, resolution)``'s hot pixels ``(index (H,), e⁻/s (H,))``, looked up once per (frozen) model
-    and detector size (its cache key is seven of the model's numbers)."""
-    hit = _HOT_CACHE.get(id(model))
-    if hit is not None and hit[0] is model and hit[1] == resolution:
-        return hit[2]
-    _, hot_idx, hot_rate = fixed_pattern(model, resolution)
-    if len(_HOT_CACHE) > 64:
-        _HOT_CACHE.clear()
-    _HOT_CACHE[id(model)] = (model, resolution, (hot_idx, hot_rate))
-    return hot_idx, hot_rate
-
-
 _KINDS = np.array([KIND_STAR, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_NOISE], dtype=np.int64)
 _NO_FALSE = FalseObjects.none()
 _EMPTY_1 = np.zeros(0)
@@ -230,13 +214,7 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
     n = plan.n_exposures
     fo = draw_false_objects(scene, model, rng, validate=False) if include_false else _NO_FALSE
     rate0, color_term = _star_pe_constants(model)
-    # rate0 · 10^(−0.4 (V + c (B−V))) · τ, its products and sums in place (the same operations on the same operands)
-    x = scene.bv * color_term
-    x += scene.vmag
-    x *= -0.4
-    star_pe = 10.0 ** x
-    star_pe *= rate0
-    star_pe *= tau
+    star_pe = rate0 * 10.0 ** (-0.4 * (scene.vmag + color_term * scene.bv)) * tau
     nd = len(fo.debris_vmag)
     if nd:
         debris_pe = rate0 * 10.0 ** (-0.4 * (fo.debris_vmag + color_term * np.zeros(nd))) * tau
@@ -248,7 +226,7 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
     n_cand = n * len(scene.star_index) + n * nd + len(fo.cosmic_e)
     u = rng.random(n_cand)
     if include_false:
-        hot_idx, hot_rate = _hot_pixels(model, scene.camera.resolution)
+        _, hot_idx, hot_rate = fixed_pattern(model, scene.camera.resolution)
         # the candidates' three normals and the hot pixels' one in one draw (the stream of two draws in that order)
         zz = rng.standard_normal(3 * n_cand + len(hot_idx))
         z = zz[:3 * n_cand].reshape(n_cand, 3)

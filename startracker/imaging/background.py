@@ -229,14 +229,6 @@ def _detector_area_cm2(cam) -> float:
     return area
 
 
-def _columns(c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
-    """``np.stack([c0, c1], axis=1)`` of two (n,) arrays, without its generic machinery (a fresh (n, 2) array)."""
-    out = np.empty((len(c0), 2))
-    out[:, 0] = c0
-    out[:, 1] = c1
-    return out
-
-
 def draw_false_objects(scene: Scene, model: SensorModel, rng: np.random.Generator, *, validate: bool = True) -> FalseObjects:
     """Draw the frame's debris streaks and cosmic-ray hits.
 
@@ -260,8 +252,7 @@ def draw_false_objects(scene: Scene, model: SensorModel, rng: np.random.Generato
         xy0 = u[:, :2] * size - 0.5
         ang = 2 * np.pi * u[:, 2]
         speed = np.exp(_LOG_SPEED_LO + _LOG_SPEED_SPAN * u[:, 3])
-        vel = _columns(np.cos(ang), np.sin(ang))
-        vel *= speed[:, None]
+        vel = np.stack([np.cos(ang), np.sin(ang)], axis=1) * speed[:, None]
         vmag = model.debris_vmag_range[0] + (model.debris_vmag_range[1] - model.debris_vmag_range[0]) * u[:, 4]
     else:  # nothing drawn for no debris: the shared empty arrays
         xy0, vel, vmag = _NONE.debris_xy0, _NONE.debris_velocity_px_s, _NONE.debris_vmag
@@ -269,9 +260,7 @@ def draw_false_objects(scene: Scene, model: SensorModel, rng: np.random.Generato
         v = rng.random((n_c, 4))  # position (2), direction, length
         start = v[:, :2] * size - 0.5
         a = 2 * np.pi * v[:, 2]
-        step = _columns(np.cos(a), np.sin(a))
-        step *= (COSMIC_MAX_LEN_PX * v[:, 3])[:, None]
-        end = start + step
+        end = start + np.stack([np.cos(a), np.sin(a)], axis=1) * (COSMIC_MAX_LEN_PX * v[:, 3])[:, None]
         charge = model.cosmic_ray_median_e * np.exp(0.6 * rng.standard_normal(n_c))
     else:
         start, end, charge = _NONE.cosmic_start_xy, _NONE.cosmic_end_xy, _NONE.cosmic_e

@@ -16,10 +16,15 @@ Only the env is timed: the clock runs around ``env.reset`` and ``env.step`` and 
 computes the next action (the policy is the user's, not the env's cost). The floor is timed the same way, around
 the ``Spacecraft`` calls only.
 
-Each row gives steps/s and the ratio of its step time to the floor's (1.0 = free avionics). Then the matcher table
-of ``bench_matching.py`` (DKVLUT vs compiled brute force vs scipy's cKDTree) when ``--matchers`` is given.
+Each row gives steps/s and the ratio of its step time to the floor's (1.0 = free avionics). Then, with
+``--vector-envs N`` (default 2; 0 skips it), the throughput a user gets from the default env on several cores:
+gymnasium's ``AsyncVectorEnv`` with N worker processes, 120° slews back to back (autoreset), timed around
+``vec.step`` only, as aggregate env steps/s (autoreset steps not counted) and its ratio to the one-process default
+row of the same run. This is throughput, not the speed of one env: the issue's per-env target is the default row.
+Then the matcher table of ``bench_matching.py`` (DKVLUT vs compiled brute force vs scipy's cKDTree) when
+``--matchers`` is given.
 
-    python benchmarks/bench_env_speed.py [--quick] [--repeats 5] [--episodes 2] [--matchers]
+    python benchmarks/bench_env_speed.py [--quick] [--repeats 5] [--episodes 2] [--vector-envs 2] [--matchers]
 """
 
 from __future__ import annotations
@@ -103,12 +108,45 @@ def physics_only(actions, control_period_s: float, substep_s: float) -> float:
     return steps / wall
 
 
+def run_vector(kwargs: dict, n_envs: int, n_vec_steps: int, angle_deg: float, max_episode_s: float) -> float:
+    """Aggregate env steps/s of ``n_envs`` default envs in gymnasium's ``AsyncVectorEnv`` (one process each).
+
+    Every episode is an ``angle_deg`` slew (``slew_angle_deg_range`` fixed), the eigenaxis policy acts per env outside
+    the clock, and the steps that only autoreset a finished env are not counted.
+    """
+    def make():
+        return gym.make("startracker/AgileSlew-v0", max_episode_s=max_episode_s,
+                        slew_angle_deg_range=(angle_deg, angle_deg), **kwargs)
+
+    vec = gym.vector.AsyncVectorEnv([make] * n_envs)
+    template = make()
+    pol = EigenaxisSlewPolicy.from_env(template)
+    template.close()
+    clock = time.perf_counter
+    try:
+        obs, _ = vec.reset(seed=list(range(n_envs)))
+        done = np.zeros(n_envs, dtype=bool)
+        steps, wall = 0, 0.0
+        for _ in range(n_vec_steps):
+            act = np.stack([pol.act(o) for o in gym.vector.utils.iterate(vec.observation_space, obs)])
+            t0 = clock()
+            obs, _, te, tr, _ = vec.step(act)
+            wall += clock() - t0
+            steps += int(np.count_nonzero(~done))  # an env that ended last step only resets in this one
+            done = te | tr
+    finally:
+        vec.close()
+    return steps / wall
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="1 repeat of 1 short episode per row")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--episodes", type=int, default=2)
     ap.add_argument("--angle-deg", type=float, default=120.0)
+    ap.add_argument("--vector-envs", type=int, default=2,
+                    help="worker processes of the AsyncVectorEnv throughput row (0: skip it)")
     ap.add_argument("--matchers", action="store_true", help="also print the matcher table (bench_matching)")
     args = ap.parse_args()
     reps, n_ep = (1, 1) if args.quick else (args.repeats, args.episodes)
@@ -136,6 +174,20 @@ def main():
               f"{TARGETS.get(name, '')} |")
     print(f"| physics-only floor (same Spacecraft, same actions, same substeps) | {floor_sps:.0f} | "
           f"{min(floor):.0f} | {max(floor):.0f} | 1.00 | | |")
+    if args.vector_envs > 0:
+        n_vec = args.vector_envs
+        one_env = float(np.median([r[0] for r in results["default (centroid, multi-exposure)"]]))
+        run_vector({}, n_vec, 5, args.angle_deg, 2.0)  # warm-up: worker start, imports, kernels from the cache
+        vec_sps = [run_vector({}, n_vec, 60 if args.quick else 300, args.angle_deg, max_s) for _ in range(reps)]
+        med = float(np.median(vec_sps))
+        print()
+        print(f"Throughput on several cores: the default env in gymnasium's AsyncVectorEnv, {n_vec} worker processes, "
+              f"{args.angle_deg:.0f}° slews back to back; median of {reps} runs of {60 if args.quick else 300} vector "
+              f"steps")
+        print("| configuration | aggregate env steps/s (median) | min | max | per env | vs one env (default row) |")
+        print("|---|---|---|---|---|---|")
+        print(f"| default, AsyncVectorEnv x {n_vec} | {med:.0f} | {min(vec_sps):.0f} | {max(vec_sps):.0f} | "
+              f"{med / n_vec:.0f} | {med / one_env:.2f} |")
     if args.matchers:
         import bench_matching
 

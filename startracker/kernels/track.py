@@ -209,18 +209,14 @@ def dkvlut_build(pred):
     n = pred.shape[0]
     order = np.empty((2, n), dtype=np.int64)
     k = np.empty((2, n), dtype=np.int64)
+    cross = np.empty((2, n), dtype=np.int64)
     line = np.empty((2, 6))
     col = np.empty(n)
     srt = np.empty(n)
-    o1 = np.empty(n, dtype=np.int64)  # contiguous 1-D scratch: the sort runs faster than on a row view
-    k1 = np.empty(n, dtype=np.int64)
     for a in range(2):
         for j in range(n):
             col[j] = pred[j, a]
-        a1, b1 = kvector_fill(col, o1, srt, k1)
-        for j in range(n):
-            order[a, j] = o1[j]
-            k[a, j] = k1[j]
+        a1, b1 = kvector_fill(col, order[a], srt, k[a])
         s0, s1 = srt[0], srt[n - 1]
         degenerate = not (a1 > 1e-9 * max(1.0, abs(s0), abs(s1)))
         line[a, 0] = 0.0 if degenerate else 1.0 / a1

@@ -51,9 +51,7 @@ def kvector_build(values):
 def kvector_fill(values, order, s, k):
     """:func:`kvector_build` into preallocated arrays ``order``, ``s``, ``k`` (shape (n,) each); returns (a1, b1)."""
     n = values.shape[0]
-    stable_argsort_into(values, order)
-    for j in range(n):
-        s[j] = values[order[j]]
+    _bucket_argsort(values, order, s)
     d = (s[n - 1] - s[0]) / (n - 1) if n > 1 else 0.0
     if d <= 0.0:
         d = max(1.0, abs(s[0])) * 1e-9  # all values equal: any positive spacing works
@@ -82,9 +80,10 @@ def stable_argsort(values):
 def stable_argsort_into(values, order):
     """``np.argsort(values, kind="stable")`` in O(n) for spread-out values: a bucket sort.
 
-    Values go into n equal-width bins between their minimum and maximum (a counting sort, stable), then each bin
-    is sorted by insertion (stable; a bin of more than 32 values by merge sort), the bin index being a
-    non-decreasing function of the value. The same permutation as numpy's stable sort.
+    Values go into n equal-width bins between their minimum and maximum (a counting sort, stable), the bin index
+    being a non-decreasing function of the value, so that every out-of-order pair lies within one bin; one
+    insertion pass over the whole array (stable) then sorts the bins, a bin of more than 32 values being
+    merge-sorted first. The same permutation as numpy's stable sort.
 
     Parameters
     ----------
@@ -93,6 +92,13 @@ def stable_argsort_into(values, order):
     order : ndarray of int64, shape (n,)
         Output, written in place.
     """
+    _bucket_argsort(values, order, np.empty(values.shape[0]))
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _bucket_argsort(values, order, keys):
+    """:func:`stable_argsort_into` that also writes the sorted values into ``keys`` (float64, shape (n,)): the
+    insertion pass compares them in place, contiguous, instead of through ``order``."""
     n = values.shape[0]
     if n == 0:
         return
@@ -108,6 +114,8 @@ def stable_argsort_into(values, order):
         for i in range(n):
             order[i] = i
         _merge_argsort(values, order, 0, n, np.empty(n, dtype=np.int64))
+        for i in range(n):
+            keys[i] = values[order[i]]
         return
     start = np.zeros(n + 1, dtype=np.int64)
     bins = np.empty(n, dtype=np.int64)
@@ -118,24 +126,40 @@ def stable_argsort_into(values, order):
             b = top
         bins[i] = b
         start[b + 1] += 1
-    for b in range(n):
-        start[b + 1] += start[b]
-    fill = start[:n].copy()
-    for i in range(n):
+    crowded = False
+    c = 0
+    for b in range(1, n + 1):  # counts to starts, a running sum
+        m = start[b]
+        crowded |= m > 32
+        c += m
+        start[b] = c
+    for i in range(n):  # afterwards start[b] is the end of bin b
         b = bins[i]
-        order[fill[b]] = i
-        fill[b] += 1
-    tmp = np.empty(0, dtype=np.int64)
-    for b in range(n):
-        a, e = start[b], start[b + 1]
-        if e - a < 2:
-            continue
-        if e - a > 32:
-            if tmp.shape[0] == 0:
-                tmp = np.empty(n, dtype=np.int64)
-            _merge_argsort(values, order, a, e, tmp)
-        else:
-            _insertion_argsort(values, order, a, e)
+        p = start[b]
+        order[p] = i
+        keys[p] = values[i]
+        start[b] = p + 1
+    if crowded:
+        tmp = np.empty(n, dtype=np.int64)
+        a = 0
+        for b in range(n):
+            e = start[b]
+            if e - a > 32:
+                _merge_argsort(values, order, a, e, tmp)
+                for p in range(a, e):
+                    keys[p] = values[order[p]]
+            a = e
+    for j in range(1, n):  # insertion; the bins being in value order, no value moves out of its bin
+        v = keys[j]
+        if keys[j - 1] > v:
+            cur = order[j]
+            i = j - 1
+            while i >= 0 and keys[i] > v:
+                order[i + 1] = order[i]
+                keys[i + 1] = keys[i]
+                i -= 1
+            order[i + 1] = cur
+            keys[i + 1] = v
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)

@@ -209,18 +209,14 @@ def dkvlut_build(pred):
     n = pred.shape[0]
     order = np.empty((2, n), dtype=np.int64)
     k = np.empty((2, n), dtype=np.int64)
+    cross = np.empty((2, n), dtype=np.int64)
     line = np.empty((2, 6))
     col = np.empty(n)
     srt = np.empty(n)
-    o1 = np.empty(n, dtype=np.int64)  # contiguous 1-D scratch: the sort runs faster than on a row view
-    k1 = np.empty(n, dtype=np.int64)
     for a in range(2):
         for j in range(n):
             col[j] = pred[j, a]
-        a1, b1 = kvector_fill(col, o1, srt, k1)
-        for j in range(n):
-            order[a, j] = o1[j]
-            k[a, j] = k1[j]
+        a1, b1 = kvector_fill(col, order[a], srt, k[a])
         s0, s1 = srt[0], srt[n - 1]
         degenerate = not (a1 > 1e-9 * max(1.0, abs(s0), abs(s1)))
         line[a, 0] = 0.0 if degenerate else 1.0 / a1
@@ -240,16 +236,25 @@ def dkvlut_build(pred):
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _axis_range(k, line, n, o, r):
-    """Eqs. 4-5 on one axis: 0-based half-open rows ``[K(i_a) - 1, K(i_b))`` (the paper's ``[K(i_a), K(i_b)]``)."""
-    inv, b1, tol, s0, s1 = line[0], line[1], line[2], line[3], line[4]
+def _axis_line(line, r):
+    """One axis' constants of eqs. 4-5 for radius r, computed once per call rather than per observed point:
+    ``(1/a1, i_a offset, i_b offset, r, tol, S(1), S(l_s))`` (``i = o / a1 + offset``)."""
+    inv, b1, tol = line[0], line[1], line[2]
+    return inv, (-r - tol - b1) * inv, (r + tol - b1) * inv, r, tol, line[3], line[4]
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _axis_range(k, c, n, o):
+    """Eqs. 4-5 on one axis (``c`` from :func:`_axis_line`): 0-based half-open rows ``[K(i_a) - 1, K(i_b))`` (the
+    paper's ``[K(i_a), K(i_b)]``)."""
+    inv, off_a, off_b, r, tol, s0, s1 = c
     if inv == 0.0:
         # tol also here: d² may underflow to <= r² for |o - s| a hair beyond r
         if o + r + tol >= s0 and o - r - tol <= s1:
             return 0, n
         return 0, 0
-    ha = o * inv + (-r - tol - b1) * inv
-    hb = o * inv + (r + tol - b1) * inv
+    ha = o * inv + off_a
+    hb = o * inv + off_b
     if not ha >= 1.0:  # NaN too
         ha = 1.0
     elif ha > n:
@@ -284,9 +289,10 @@ def dkvlut_ranges(order, k, line, obs, radius_px):
     n = order.shape[1]
     q_n = obs.shape[0]
     out = np.empty((q_n, 4), dtype=np.int64)
+    cx, cy = _axis_line(line[0], radius_px), _axis_line(line[1], radius_px)
     for q in range(q_n):
         for a in range(2):
-            lo, hi = _axis_range(k[a], line[a], n, obs[q, a], radius_px)
+            lo, hi = _axis_range(k[a], cx if a == 0 else cy, n, obs[q, a])
             out[q, 2 * a] = lo
             out[q, 2 * a + 1] = hi
     return out
@@ -356,10 +362,12 @@ def dkvlut_match(pred, order, k, line, cross, obs, radius_px):
     q_n = obs.shape[0]
     r2 = radius_px * radius_px
     out = np.empty(q_n, dtype=np.int64)
+    kx, ky = k[0], k[1]
+    cx, cy = _axis_line(line[0], radius_px), _axis_line(line[1], radius_px)
     for q in range(q_n):
         xq, yq = obs[q, 0], obs[q, 1]
-        x0, x1 = _axis_range(k[0], line[0], n, xq, radius_px)
-        y0, y1 = _axis_range(k[1], line[1], n, yq, radius_px)
+        x0, x1 = _axis_range(kx, cx, n, xq)
+        y0, y1 = _axis_range(ky, cy, n, yq)
         if x1 - x0 <= y1 - y0:
             a, lo, hi, olo, ohi = 0, x0, x1, y0, y1
         else:

@@ -72,13 +72,18 @@ def per_call_s(fn, repeats: int, loop: int = 10) -> float:
     return float(np.median(per))
 
 
+def print_header(header: str) -> None:
+    """A table's header line and its rule."""
+    print(header)
+    print("-" * len(header))
+
+
 def matcher_table(cam, cat, n_scenes: int, repeats: int, rng) -> dict:
     print(f"\nPart 1: matchers, build + match per frame, M = {M_STARS}, σ = 1 px, r = 6 px; "
           f"per scene median of {repeats} × 10 calls, then median over {n_scenes} scenes (IQR 25-75 %)")
     hdr = (f"{'N':>3} {'W':>4} | {'dkvlut ms':>9} {'(IQR)':>13} | {'brute ms':>8} {'(IQR)':>13} | {'kdtree ms':>9} "
            f"{'(IQR)':>13} | {'brute/dk':>8} {'kd/dk':>6}")
-    print(hdr)
-    print("-" * len(hdr))
+    print_header(hdr)
     out = {}
     for n in N_VALUES:
         times = {m: [] for m in MATCH_METHODS}
@@ -123,8 +128,7 @@ def process_table(n_processes: int, n_scenes: int, repeats: int, seed: int) -> N
           f"median over the processes of each one's medians; ratio range over the processes")
     hdr = (f"{'W':>4} | {'dkvlut ms':>9} | {'brute ms':>8} | {'kdtree ms':>9} | {'brute/dk':>8} {'(range)':>11} | "
            f"{'kd/dk':>6} {'(range)':>11}")
-    print(hdr)
-    print("-" * len(hdr))
+    print_header(hdr)
     for w in sorted(runs[0]):
         ms = {m: np.median([r[w][m] for r in runs]) for m in MATCH_METHODS}
         rb = np.array([r[w]["brute"] / r[w]["dkvlut"] for r in runs])
@@ -158,8 +162,7 @@ def pipeline_table(cam, cat, n_scenes: int, repeats: int, rng) -> None:
           f"frames of the per-frame median of {repeats} × 10 calls")
     hdr = (f"{'N':>3} {'W':>5} | {'predict':>8} | {'match dk':>8} {'match br':>8} {'match kd':>8} | {'group+N Wahba':>13} | "
            f"{'total (dk)':>10} {'total (br)':>10} {'total (kd)':>10} | {'one call (dk)':>13}")
-    print(hdr)
-    print("-" * len(hdr))
+    print_header(hdr)
     alpha = np.zeros(3)
     for n in N_VALUES:
         rows = []

@@ -17,10 +17,12 @@ computes the next action (the policy is the user's, not the env's cost). The flo
 the ``Spacecraft`` calls only.
 
 Each row gives steps/s and the ratio of its step time to the floor's (1.0 = free avionics). Then, with
-``--vector-envs N`` (default 2; 0 skips it), the throughput a user gets from the default env on several cores:
-gymnasium's ``AsyncVectorEnv`` with N worker processes, 120° slews back to back (autoreset), timed around
-``vec.step`` only, as aggregate env steps/s (autoreset steps not counted) and its ratio to the one-process default
-row of the same run. This is throughput, not the speed of one env: the issue's per-env target is the default row.
+``--vector-envs N`` (default 2; 0 skips it), the throughput a user gets from the default env on several cores, two
+ways: gymnasium's ``AsyncVectorEnv`` with N worker processes, 120° slews back to back (autoreset), timed around
+``vec.step`` only (autoreset steps not counted); and N processes each running whole episodes as the default row does
+(after a warm-up episode of their own), at the same time, their steps/s summed. Each as aggregate env steps/s and its
+ratio to the one-process default row of the same run. This is throughput, not the speed of one env: the issue's
+per-env target is the default row.
 Then the matcher table of ``bench_matching.py`` (DKVLUT vs compiled brute force vs scipy's cKDTree) when
 ``--matchers`` is given.
 
@@ -30,6 +32,7 @@ Then the matcher table of ``bench_matching.py`` (DKVLUT vs compiled brute force 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import sys
 import time
 from pathlib import Path
@@ -139,6 +142,21 @@ def run_vector(kwargs: dict, n_envs: int, n_vec_steps: int, angle_deg: float, ma
     return steps / wall
 
 
+def episodes_in_process(job: tuple) -> float:
+    """One worker of :func:`run_processes`: a warm-up episode, then :func:`run_episodes`' steps/s."""
+    kwargs, n_episodes, angle_deg, max_episode_s = job
+    run_episodes(kwargs, 1, angle_deg, 2.0)  # kernels from the cache (or inherited), databases
+    return run_episodes(kwargs, n_episodes, angle_deg, max_episode_s)[0]
+
+
+def run_processes(kwargs: dict, n_processes: int, n_episodes: int, angle_deg: float, max_episode_s: float) -> float:
+    """Aggregate steps/s of ``n_processes`` processes running whole episodes at the same time (the sum of their
+    steps/s, each timed as :func:`run_episodes` times it)."""
+    with multiprocessing.get_context().Pool(n_processes) as pool:
+        rates = pool.map(episodes_in_process, [(kwargs, n_episodes, angle_deg, max_episode_s)] * n_processes)
+    return float(sum(rates))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="1 repeat of 1 short episode per row")
@@ -182,12 +200,16 @@ def main():
         med = float(np.median(vec_sps))
         print()
         print(f"Throughput on several cores: the default env in gymnasium's AsyncVectorEnv, {n_vec} worker processes, "
-              f"{args.angle_deg:.0f}° slews back to back; median of {reps} runs of {60 if args.quick else 300} vector "
-              f"steps")
+              f"{args.angle_deg:.0f}° slews back to back, median of {reps} runs of {60 if args.quick else 300} vector "
+              f"steps; and {n_vec} processes each running {n_ep} whole episodes at once, median of {reps} runs")
+        proc_sps = [run_processes({}, n_vec, n_ep, args.angle_deg, max_s) for _ in range(reps)]
+        med_p = float(np.median(proc_sps))
         print("| configuration | aggregate env steps/s (median) | min | max | per env | vs one env (default row) |")
         print("|---|---|---|---|---|---|")
         print(f"| default, AsyncVectorEnv x {n_vec} | {med:.0f} | {min(vec_sps):.0f} | {max(vec_sps):.0f} | "
               f"{med / n_vec:.0f} | {med / one_env:.2f} |")
+        print(f"| default, {n_vec} processes of whole episodes | {med_p:.0f} | {min(proc_sps):.0f} | "
+              f"{max(proc_sps):.0f} | {med_p / n_vec:.0f} | {med_p / one_env:.2f} |")
     if args.matchers:
         import bench_matching
 

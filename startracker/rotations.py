@@ -49,18 +49,16 @@ def quat_normalize(q) -> np.ndarray:
     -------
     ndarray, shape (..., 4)
         Unit quaternions with non-negative scalar part (the same rotation).
+
+    Raises
+    ------
+    ValueError
+        ``q`` is not (..., 4), holds NaN or inf, or a quaternion of norm below 1e-12.
     """
     q = as_float_array(q, "q", last_dim=4)
-    n = np.linalg.norm(q, axis=-1, keepdims=True)
-    if np.any(n < 1e-12):
+    if np.any(kernels.vector_norm(q) < 1e-12):
         raise ValueError("q contains a zero quaternion, which is not a rotation")
-    return _canonical_sign(q / n)
-
-
-def _canonical_sign(q: np.ndarray) -> np.ndarray:
-    """q and -q are the same rotation: pick the one whose first non-zero component is positive."""
-    first = np.take_along_axis(q, np.argmax(q != 0.0, axis=-1)[..., None], axis=-1)
-    return np.where(first < 0.0, -q, q)
+    return kernels.quat_normalize(q)
 
 
 def quat_multiply(q1, q2) -> np.ndarray:
@@ -74,26 +72,30 @@ def quat_multiply(q1, q2) -> np.ndarray:
     Returns
     -------
     ndarray, shape (..., 4)
+
+    Raises
+    ------
+    ValueError
+        Either is not (..., 4) or holds NaN or inf, or their shapes do not broadcast.
     """
-    q1 = np.asarray(q1, dtype=np.float64)
-    q2 = np.asarray(q2, dtype=np.float64)
-    w1, x1, y1, z1 = np.moveaxis(q1, -1, 0)
-    w2, x2, y2, z2 = np.moveaxis(q2, -1, 0)
-    return np.stack(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ],
-        axis=-1,
-    )
+    q1 = as_float_array(q1, "q1", last_dim=4)
+    q2 = as_float_array(q2, "q2", last_dim=4)
+    try:
+        np.broadcast_shapes(q1.shape, q2.shape)
+    except ValueError:
+        raise ValueError(f"q1 {q1.shape} and q2 {q2.shape} do not broadcast") from None
+    return kernels.quat_multiply(q1, q2)
 
 
 def quat_conjugate(q) -> np.ndarray:
-    """Conjugate (the inverse of a unit quaternion), shape (..., 4)."""
-    q = np.asarray(q, dtype=np.float64)
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
+    """Conjugate (the inverse of a unit quaternion), shape (..., 4).
+
+    Raises
+    ------
+    ValueError
+        ``q`` is not (..., 4) or holds NaN or inf.
+    """
+    return kernels.quat_conjugate(as_float_array(q, "q", last_dim=4))
 
 
 def to_scipy(q) -> Rotation:
@@ -105,7 +107,7 @@ def to_scipy(q) -> Rotation:
 def from_scipy(rot: Rotation) -> np.ndarray:
     """Scalar-first unit quaternion(s) with ``w >= 0`` from a scipy ``Rotation``."""
     xyzw = rot.as_quat()
-    return _canonical_sign(xyzw[..., [3, 0, 1, 2]])
+    return kernels.canonical_sign(xyzw[..., [3, 0, 1, 2]])
 
 
 def quat_to_matrix(q) -> np.ndarray:
@@ -179,7 +181,7 @@ def quat_random(rng: np.random.Generator, size: int | None = None) -> np.ndarray
         ],
         axis=-1,
     )
-    q = _canonical_sign(q)
+    q = kernels.canonical_sign(q)
     return q[0] if size is None else q
 
 

@@ -84,3 +84,37 @@ def test_roundtrips_property(q):
     back = rot.quat_from_rotvec(rot.quat_to_rotvec(q))
     assert rot.quat_angle_between(back, q) < 1e-12
     np.testing.assert_allclose(rot.quat_multiply(q, rot.quat_conjugate(q)), [1, 0, 0, 0], atol=1e-14)
+
+
+def test_quaternion_algebra_checks_its_arguments_once():
+    with pytest.raises(ValueError, match="q1"):
+        rot.quat_multiply([np.nan, 0, 0, 1], [1, 0, 0, 0])
+    with pytest.raises(ValueError, match="q2"):
+        rot.quat_multiply([1, 0, 0, 0], [1, 0, 0])
+    with pytest.raises(ValueError, match="q1 .* q2 .* broadcast"):
+        rot.quat_multiply(np.ones((3, 4)), np.ones((2, 4)))
+    with pytest.raises(ValueError, match="q"):
+        rot.quat_conjugate([1, 0, np.inf, 0])
+    with pytest.raises(TypeError, match="q"):
+        rot.quat_conjugate("1 0 0 0")
+
+
+def test_product_broadcasts_like_scipy_composition():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    qa = rot.quat_random(rng, 5)  # (5, 4)
+    qb = rot.quat_random(rng)  # (4,)
+    xyzw = [1, 2, 3, 0]
+    for left, right in ((qb, qa), (qa, qb), (qa, qa[::-1])):
+        # scipy: (A * B) applies B first, as q_left ⊗ q_right does
+        truth = (Rotation.from_quat(np.atleast_2d(left)[:, xyzw]) * Rotation.from_quat(np.atleast_2d(right)[:, xyzw])).as_matrix()
+        np.testing.assert_allclose(rot.quat_to_matrix(rot.quat_multiply(left, right)), truth, atol=1e-14)
+    # the conjugate inverts: q ⊗ q* is the identity, row by row
+    np.testing.assert_allclose(rot.quat_multiply(qa, rot.quat_conjugate(qa)), np.tile([1.0, 0, 0, 0], (5, 1)), atol=1e-15)
+    # the normalised quaternion is the same rotation, unit norm, w >= 0
+    raw = -3.0 * qa
+    unit = rot.quat_normalize(raw)
+    np.testing.assert_allclose(np.linalg.norm(unit, axis=1), 1.0, atol=1e-15)
+    assert np.all(unit[:, 0] >= 0)
+    np.testing.assert_allclose(rot.quat_to_matrix(unit), Rotation.from_quat(raw[:, xyzw]).as_matrix(), atol=1e-14)

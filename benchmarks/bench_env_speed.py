@@ -23,15 +23,22 @@ ways: gymnasium's ``AsyncVectorEnv`` with N worker processes, 120° slews back t
 (after a warm-up episode of their own), at the same time, their steps/s summed. Each as aggregate env steps/s and its
 ratio to the one-process default row of the same run. This is throughput, not the speed of one env: the issue's
 per-env target is the default row.
-Then the matcher table of ``bench_matching.py`` (DKVLUT vs compiled brute force vs scipy's cKDTree) when
-``--matchers`` is given.
+With ``--budget``, where a step's time goes, per configuration: the physics (``Spacecraft.step_recording``), the
+compiled kernels (every numba function the package's modules hold under a public name, timed around each call from
+Python, dispatch included; calls made inside compiled code are part of their caller's time) and the rest (Python,
+numpy, the random draws), each in µs per step (medians over the repeats), with the kernels' time over the physics':
+the ratio a star tracker made only of these kernels, with no Python around them, would have to the floor. The timers
+add about 0.3 µs per timed call to the rest. Then the matcher table of ``bench_matching.py`` (DKVLUT vs compiled
+brute force vs scipy's cKDTree) when ``--matchers`` is given.
 
-    python benchmarks/bench_env_speed.py [--quick] [--repeats 5] [--episodes 2] [--vector-envs 2] [--matchers]
+    python benchmarks/bench_env_speed.py [--quick] [--repeats 5] [--episodes 2] [--vector-envs 2] [--budget] [--matchers]
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
+import contextlib
 import multiprocessing
 import sys
 import time
@@ -42,6 +49,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import gymnasium as gym  # noqa: E402
+from numba.core.registry import CPUDispatcher  # noqa: E402
 
 import envs  # noqa: E402,F401
 from envs.spacecraft import Spacecraft  # noqa: E402
@@ -111,6 +119,82 @@ def physics_only(actions, control_period_s: float, substep_s: float) -> float:
     return steps / wall
 
 
+@contextlib.contextmanager
+def timed_calls(totals: collections.Counter):
+    """Time every call from Python of the compiled kernels and of ``Spacecraft.step_recording`` while the context is
+    open: ``totals["kernels"]``, ``totals["kernel calls"]`` and ``totals["physics"]`` (s) accumulate.
+
+    Each numba dispatcher held under a public name by a loaded ``startracker`` or ``envs`` module is replaced by a
+    timing wrapper (one per dispatcher) and put back on exit.
+    """
+    clock = time.perf_counter
+    wrappers, patched = {}, []
+
+    def timing(dispatcher):
+        def call(*args):
+            t0 = clock()
+            out = dispatcher(*args)
+            totals["kernels"] += clock() - t0
+            totals["kernel calls"] += 1
+            return out
+        return call
+
+    for name, module in list(sys.modules.items()):
+        if module is None or not name.split(".")[0] in ("startracker", "envs"):
+            continue
+        for attr, obj in list(vars(module).items()):
+            if isinstance(obj, CPUDispatcher) and not attr.startswith("_"):
+                if id(obj) not in wrappers:
+                    wrappers[id(obj)] = timing(obj)
+                patched.append((module, attr, obj))
+                setattr(module, attr, wrappers[id(obj)])
+    step_recording = Spacecraft.step_recording
+
+    def timed_step_recording(self, substep_s, n_steps):
+        t0 = clock()
+        out = step_recording(self, substep_s, n_steps)
+        totals["physics"] += clock() - t0
+        return out
+
+    Spacecraft.step_recording = timed_step_recording
+    try:
+        yield totals
+    finally:
+        Spacecraft.step_recording = step_recording
+        for module, attr, obj in patched:
+            setattr(module, attr, obj)
+
+
+def step_budget(kwargs: dict, n_episodes: int, angle_deg: float, max_episode_s: float) -> dict:
+    """Where a step's time goes over whole episodes (after a warm-up episode): µs per step of the env (reset and step),
+    the physics, the compiled kernels and the rest, and the kernel calls per step (:func:`timed_calls`)."""
+    env = gym.make("startracker/AgileSlew-v0", max_episode_s=max_episode_s, **kwargs)
+    pol = EigenaxisSlewPolicy.from_env(env)
+    obs, _ = env.reset(seed=0, options={"slew_angle_deg": angle_deg})
+    for _ in range(20):  # warm-up: this configuration's kernels and databases
+        obs, *_ = env.step(pol.act(obs))
+    totals = collections.Counter()
+    clock = time.perf_counter
+    steps, wall = 0, 0.0
+    with timed_calls(totals):
+        for k in range(n_episodes):
+            t0 = clock()
+            obs, _ = env.reset(seed=k, options={"slew_angle_deg": angle_deg})
+            wall += clock() - t0
+            done = False
+            while not done:
+                a = pol.act(obs)
+                t0 = clock()
+                obs, _, te, tr, _ = env.step(a)
+                wall += clock() - t0
+                steps += 1
+                done = te or tr
+    env.close()
+    us = 1e6 / steps
+    return {"env": wall * us, "physics": totals["physics"] * us, "kernels": totals["kernels"] * us,
+            "rest": (wall - totals["physics"] - totals["kernels"]) * us, "calls": totals["kernel calls"] / steps}
+
+
 def run_vector(kwargs: dict, n_envs: int, n_vec_steps: int, angle_deg: float, max_episode_s: float) -> float:
     """Aggregate env steps/s of ``n_envs`` default envs in gymnasium's ``AsyncVectorEnv`` (one process each).
 
@@ -165,6 +249,8 @@ def main():
     ap.add_argument("--angle-deg", type=float, default=120.0)
     ap.add_argument("--vector-envs", type=int, default=2,
                     help="worker processes of the AsyncVectorEnv throughput row (0: skip it)")
+    ap.add_argument("--budget", action="store_true",
+                    help="also print where a step's time goes (physics, compiled kernels, the rest) per configuration")
     ap.add_argument("--matchers", action="store_true", help="also print the matcher table (bench_matching)")
     args = ap.parse_args()
     reps, n_ep = (1, 1) if args.quick else (args.repeats, args.episodes)
@@ -210,6 +296,19 @@ def main():
               f"{med / n_vec:.0f} | {med / one_env:.2f} |")
         print(f"| default, {n_vec} processes of whole episodes | {med_p:.0f} | {min(proc_sps):.0f} | "
               f"{max(proc_sps):.0f} | {med_p / n_vec:.0f} | {med_p / one_env:.2f} |")
+    if args.budget:
+        budgets = {name: [step_budget(kw, n_ep, args.angle_deg, max_s) for _ in range(reps)]
+                   for name, kw in CONFIGS.items()}
+        print()
+        print(f"Where a step goes (µs per step, median of {reps} runs x {n_ep} whole episodes; kernels: every compiled "
+              "call from Python, dispatch included; the timers add ~0.3 µs per kernel call to the rest)")
+        print("| configuration | env | physics | compiled kernels | kernel calls per step | the rest (Python, numpy, draws) "
+              "| kernels / physics |")
+        print("|---|---|---|---|---|---|---|")
+        for name, runs in budgets.items():
+            med = {key: float(np.median([r[key] for r in runs])) for key in runs[0]}
+            print(f"| {name} | {med['env']:.0f} | {med['physics']:.0f} | {med['kernels']:.0f} | {med['calls']:.1f} | "
+                  f"{med['rest']:.0f} | {med['kernels'] / med['physics']:.2f} |")
     if args.matchers:
         import bench_matching
 

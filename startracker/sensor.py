@@ -121,8 +121,8 @@ class FrameResult:
         Detections used (tracking) or identified (lost-in-space).
     n_detections : int
     matching_latency_ms : float
-        Wall clock of the tracking attempt in this frame: prediction, matching and the per-instant solutions
-        (0 when no tracking attempt ran).
+        Wall clock of the tracking attempt in this frame: prediction, matching, the per-instant solutions and their
+        smoothness test (0 when no tracking attempt ran).
     update_rate_hz : float
         Samples of this frame divided by the frame interval.
     status : str
@@ -714,19 +714,19 @@ class StarTracker:
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
                                        f"apart, prediction σ {sig_pred:.1f} px)", [], 0, 0, r, latency)
         t_ref = float(st.t_s)
-        # quat_normalize's kernel on the state's one row (its float64 copy: no wrapper for one quaternion)
-        q0 = rk.normalize_rows(np.ascontiguousarray(st.q_body_to_icrs, dtype=np.float64).reshape(1, 4))[0]
         if self._frame_model is not None:
-            # prediction's attitudes, cone search, projection, matching, N Wahba and innovation: one compiled call
-            q_pred_all, n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = track_kernels.track_frame_from_state(
-                q0, omega, alpha, t_exp, t_ref, self._q_cam_to_body, self._half_diag_fov_rad, self._f_px,
+            # the state's attitude normalised, prediction's attitudes, cone search, projection, matching, N Wahba,
+            # innovation, then the smoothness test and covariance scaling of the solved instants: one compiled call
+            frame = track_kernels.track_frame_from_state(
+                st.q_body_to_icrs, omega, alpha, t_exp, t_ref, self._q_cam_to_body, self._half_diag_fov_rad, self._f_px,
                 *self.catalog.z_index, self.catalog.vectors, *self._frame_model, xy, float(r), self.matcher == "brute",
                 self._r_cam_to_body, self.sigma_rad, self.min_stars_per_instant, self.outlier_k_sigma * self.sigma_rad,
-                st.cov_theta_rad2, cov_w, cov_a, self._intensity, self._flux, self.blend_flux_ratio)
+                st.cov_theta_rad2, cov_w, cov_a, self._intensity, self._flux, self.blend_flux_ratio, self.instant_gate,
+                self._residual_expected_arcsec, self.scale_by_residuals)
         else:
-            q_pred_all = track_kernels.propagate_attitudes(q0, omega, alpha, t_exp - t_ref, self._q_cam_to_body)[0]
-            n_pred, n_matched, q_all, cov_all, rms_all, n_stars, ok, nis = self._track_stages(
-                xy, t_exp, q0, t_ref, omega, alpha, float(r), st.cov_theta_rad2, cov_w, cov_a)
+            frame = self._track_stages(xy, t_exp, st.q_body_to_icrs, t_ref, omega, alpha, float(r), st.cov_theta_rad2,
+                                       cov_w, cov_a)
+        n_pred, n_matched, rms_all, n_stars, ok, nis, n_off, kept, t_s, q_sol, cov_sol, n_sol = frame
         latency = (time.perf_counter() - t0) * 1e3
         if n_pred == 0:
             return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
@@ -765,10 +765,8 @@ class StarTracker:
         # its attitude against a polynomial through the other instants does (kernels.sensor.smooth_instants). Then
         # residuals larger than the centroid model claims (streaks in stray light, a rate beyond the model): the
         # instant's covariance grows by its a-posteriori variance factor, never shrinks (2 n - 3 degrees of freedom).
-        # Both compiled, on the frame's own copies: no sample shares memory with another or with the tracker.
-        n_off, kept, t_s, q_sol, cov_sol, n_sol = sensor_kernels.accept_instants(
-            sel, t_exp, q_pred_all, q_all, cov_all, rms_all, n_stars, self.instant_gate, self._residual_expected_arcsec,
-            self.scale_by_residuals)
+        # Both ran in the frame's compiled call (kernels.sensor.accept_instants), on the frame's own copies: no sample
+        # shares memory with another or with the tracker.
         if n_off:
             if 3 * n_off > n_ok:
                 return _Attempt(False, f"{n_off}/{n_ok} instants off a smooth motion (matched an exposure off)", [],
@@ -784,8 +782,10 @@ class StarTracker:
             status += f", skipped instants {list(skipped)}"
         return _Attempt(True, status, samples, n_matched, n_pred, r, latency, rms, skipped, new_state)
 
-    def _track_stages(self, xy, t_exp, q0, t_ref, omega, alpha, r, cov_theta, cov_w, cov_a):
+    def _track_stages(self, xy, t_exp, q_state, t_ref, omega, alpha, r, cov_theta, cov_w, cov_a):
         """The compiled frame's results through the public stages (a camera with its own projection, cKDTree)."""
+        # quat_normalize's kernel on the state's one row (its float64 copy: no wrapper for one quaternion)
+        q0 = rk.normalize_rows(np.ascontiguousarray(q_state, dtype=np.float64).reshape(1, 4))[0]
         pred = predict_star_positions(self.camera, self.catalog, q0, t_exp, t_ref, omega, alpha, r, validate=False)
         idx = match_stars(pred.xy, xy, r, self.matcher, validate=False)
         n_pred = int(pred.on_detector.sum())
@@ -796,8 +796,11 @@ class StarTracker:
         nis = sensor_kernels.innovation_chi2_mean(pred.q_body_to_icrs[sel], inst.q_body_to_icrs[sel],
                                                   inst.covariance_rad2[sel], t_exp[sel] - t_ref, cov_theta, cov_w,
                                                   cov_a)
-        return (n_pred, n_matched, inst.q_body_to_icrs, inst.covariance_rad2, inst.residual_rms_arcsec, inst.n_stars,
-                inst.ok, nis)
+        accepted = sensor_kernels.accept_instants(sel, t_exp, pred.q_body_to_icrs, inst.q_body_to_icrs,
+                                                  inst.covariance_rad2, inst.residual_rms_arcsec, inst.n_stars,
+                                                  self.instant_gate, self._residual_expected_arcsec,
+                                                  self.scale_by_residuals)
+        return (n_pred, n_matched, inst.residual_rms_arcsec, inst.n_stars, inst.ok, nis) + accepted
 
     def _update_state(self, st: MotionState, t, q, covs, gyro, t_frame) -> MotionState:
         """New motion state from a tracked frame's solved instants ``t`` (n,), ``q`` (n, 4), ``covs`` (n, 3, 3)

@@ -10,6 +10,7 @@ import pytest
 
 from startracker.kernels import sensor as sk
 from startracker.kernels import track as tk
+from startracker.kernels.rotations import normalize_rows
 from startracker.rotations import quat_from_rotvec, quat_integrate, quat_multiply, quat_random
 from startracker.scene import ExposurePlan, compute_scene
 from startracker.simulation import simulate_tracking_frame
@@ -48,17 +49,24 @@ def test_track_frame_from_state_is_propagation_cone_and_frame(cam, nav):
     sigma = 0.3 / cam.focal_length_px
     tail = (fr.xy, 6.0, False, cam.r_cam_to_body, sigma, 3, 5 * sigma)
     photometry = (np.zeros(len(fr.xy)), np.zeros(0), 1.6)
-    got = tk.track_frame_from_state(q_state, w_state, alpha, times, t_ref, q_cb, float(cam.half_diagonal_fov_rad),
+    # the state's attitude as the kernel may get it: any norm and sign (it normalises it first)
+    q_raw = -1.7 * q_state * np.sign(q_state[0])
+    accept = (16.0, 0.5, True)  # a residual scale the frame exceeds: the covariances grow
+    got = tk.track_frame_from_state(q_raw, w_state, alpha, times, t_ref, q_cb, float(cam.half_diagonal_fov_rad),
                                     float(cam.focal_length_px), *nav.z_index, nav.vectors, *model, *tail,
-                                    cov_t, cov_w, cov_a, *photometry)
-    q_pred, r_c2i, mid, spread = tk.propagate_attitudes(q_state, w_state, alpha, times - t_ref, q_cb)
+                                    cov_t, cov_w, cov_a, *photometry, *accept)
+    q0 = normalize_rows(q_raw[None])[0]
+    q_pred, r_c2i, mid, spread = tk.propagate_attitudes(q0, w_state, alpha, times - t_ref, q_cb)
     cone = min(np.pi, cam.half_diagonal_fov_rad + spread + 6.0 / cam.focal_length_px + 0.02)
     cand = nav.cone_search(mid, cone)
-    want = tk.track_frame(q_pred, r_c2i, cand, nav.vectors, *model, *tail, times, t_ref, cov_t, cov_w, cov_a,
-                          *photometry)
-    assert want[1] > 100 and np.all(want[6])  # matched, every instant solved
-    np.testing.assert_array_equal(got[0], q_pred)
-    for a, b in zip(got[1:], want):
+    n_pred, n_matched, q, cov, rms, n_used, ok, nis = tk.track_frame(
+        q_pred, r_c2i, cand, nav.vectors, *model, *tail, times, t_ref, cov_t, cov_w, cov_a, *photometry)
+    assert n_matched > 100 and np.all(ok)  # matched, every instant solved
+    want = (n_pred, n_matched, rms, n_used, ok, nis) + sk.accept_instants(np.flatnonzero(ok), times, q_pred, q, cov,
+                                                                         rms, n_used, *accept)
+    assert not np.array_equal(want[10], cov[ok])  # the scaling ran
+    assert len(got) == len(want)
+    for a, b in zip(got, want):
         np.testing.assert_array_equal(a, b)
 
 

@@ -19,7 +19,8 @@ from startracker.kernels.algebra import quat_multiply_into, quat_normalize_canon
 from startracker.kernels.attitude import solve_wahba_one
 from startracker.kernels.catalog import cone_search_angle
 from startracker.kernels.kvector import kvector_fill, median_value, sort_values
-from startracker.kernels.sensor import innovation_chi2_mean
+from startracker.kernels.rotations import normalize_rows
+from startracker.kernels.sensor import accept_instants, innovation_chi2_mean
 
 __all__ = [
     "propagate_attitudes",
@@ -743,13 +744,15 @@ def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
-def track_frame_from_state(q0, omega, alpha, t_exp, t_ref, q_cam_to_body, half_diag_fov_rad, focal_length_px,
+def track_frame_from_state(q_state, omega, alpha, t_exp, t_ref, q_cam_to_body, half_diag_fov_rad, focal_length_px,
                            vectors_by_z, z_sorted, z_order, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm,
                            ppx, ppy, cos_rot, sin_rot, width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad,
                            min_stars, outlier_threshold_rad, cov_theta, cov_omega, cov_alpha, obs_intensity, star_flux,
-                           flux_ratio_max):
-    """The tracker's whole frame from its motion state: :func:`propagate_attitudes` to the instants, the cone search
-    of the catalog around them, then :func:`track_frame`, in one call.
+                           flux_ratio_max, instant_gate, residual_expected_arcsec, scale_by_residuals):
+    """The tracker's whole frame from its motion state: the state's attitude normalised
+    (:func:`~startracker.kernels.rotations.normalize_rows`), :func:`propagate_attitudes` to the instants, the cone
+    search of the catalog around them, :func:`track_frame`, then the solved instants' smoothness test and covariance
+    scaling (:func:`~startracker.kernels.sensor.accept_instants`), in one call.
 
     The cone (:func:`~startracker.kernels.catalog.cone_search_angle`) is centred on the mean predicted boresight,
     its half-angle ``min(π, half_diag_fov_rad + spread + radius_px / focal_length_px + 0.02)`` (the detector's
@@ -758,8 +761,8 @@ def track_frame_from_state(q0, omega, alpha, t_exp, t_ref, q_cam_to_body, half_d
 
     Parameters
     ----------
-    q0 : ndarray, shape (4,)
-        Unit canonical body-to-ICRS attitude of the motion state.
+    q_state : ndarray, shape (4,)
+        Body-to-ICRS attitude of the motion state (non-zero).
     omega, alpha : ndarray, shape (3,)
         Body rate (rad/s) and angular acceleration (rad/s²) of the propagation.
     t_exp : ndarray, shape (N,)
@@ -780,18 +783,31 @@ def track_frame_from_state(q0, omega, alpha, t_exp, t_ref, q_cam_to_body, half_d
     r_cam_to_body, sigma_rad, min_stars, outlier_threshold_rad, cov_theta, cov_omega, cov_alpha, obs_intensity,
     star_flux, flux_ratio_max
         As :func:`track_frame`.
+    instant_gate, residual_expected_arcsec, scale_by_residuals
+        As ``gate``, ``residual_expected_arcsec`` and ``scale`` of
+        :func:`~startracker.kernels.sensor.accept_instants`.
 
     Returns
     -------
-    q_pred : ndarray, shape (N, 4)
-        Predicted body attitudes at the instants.
-    n_predicted, n_matched, q, covariance_rad2, residual_rms_arcsec, n_stars, ok, nis
+    n_predicted, n_matched
         As :func:`track_frame`.
+    residual_rms_arcsec, n_stars, ok : ndarray, shapes (N,), (N,) int64, (N,) bool
+        Per instant, as :func:`track_frame`.
+    nis : float
+        As :func:`track_frame`.
+    n_off, kept, t_s, q, covariance_rad2, n
+        The solved instants (``ok``) through :func:`~startracker.kernels.sensor.accept_instants`: instants off a smooth
+        motion, the instants kept, their times (s), attitudes (m, 4), scaled covariances (m, 3, 3, rad²) and stars,
+        fresh arrays.
     """
     n = t_exp.shape[0]
     dt = np.empty(n)
     for i in range(n):
         dt[i] = t_exp[i] - t_ref
+    q_row = np.empty((1, 4))
+    for i in range(4):
+        q_row[0, i] = q_state[i]
+    q0 = normalize_rows(q_row)[0]
     q_pred, r_c2i, mid, spread = propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body)
     cone = half_diag_fov_rad + spread + radius_px / focal_length_px + 0.02
     if not cone < math.pi:  # min(π, cone), NaN to π as Python's min has it
@@ -801,7 +817,9 @@ def track_frame_from_state(q0, omega, alpha, t_exp, t_ref, q_cam_to_body, half_d
         q_pred, r_c2i, cand, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot,
         width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad, min_stars, outlier_threshold_rad, t_exp, t_ref,
         cov_theta, cov_omega, cov_alpha, obs_intensity, star_flux, flux_ratio_max)
-    return q_pred, n_pred, n_matched, q, cov, rms, n_used, ok, nis
+    accepted = accept_instants(np.flatnonzero(ok), t_exp, q_pred, q, cov, rms, n_used, instant_gate,
+                               residual_expected_arcsec, scale_by_residuals)
+    return (n_pred, n_matched, rms, n_used, ok, nis) + accepted
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

@@ -765,7 +765,7 @@ class StarTracker:
         # its attitude against a polynomial through the other instants does (kernels.sensor.smooth_instants). Then
         # residuals larger than the centroid model claims (streaks in stray light, a rate beyond the model): the
         # instant's covariance grows by its a-posteriori variance factor, never shrinks (2 n - 3 degrees of freedom).
-        # Both ran in the frame's compiled call (kernels.sensor.accept_instants), on the frame's own copies: no sample
+        # Both ran with the frame (kernels.sensor.accept_instants, compiled), on the frame's own copies: no sample
         # shares memory with another or with the tracker.
         if n_off:
             if 3 * n_off > n_ok:

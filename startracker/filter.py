@@ -558,9 +558,9 @@ class DelayedFusion:
         self.t_s = float(self._tg[-1])
         self._now = None
         old = self.t_s - self.horizon_s
-        n_old = int(self._tg.searchsorted(old, side="right"))  # the method: np.searchsorted without its dispatch
-        if n_old == 0:
+        if self._tg[0] > old:  # nothing older than the horizon (the usual case): no search
             return
+        n_old = int(self._tg.searchsorted(old, side="right"))  # the method: np.searchsorted without its dispatch
         if self.ekf is not None and self._tg[n_old - 1] > self.ekf.t_s:
             k = n_old
             empty = np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3))

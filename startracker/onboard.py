@@ -627,7 +627,7 @@ class StarTrackerUnit:
         self._monitor_slot = 0
         self._monitor_filled = 0
         self._timing = np.zeros(MONITOR_DELIVERIES)  # each delivery's timing statistic (χ²(1) each, 0: none)
-        self._timing_n = np.zeros(MONITOR_DELIVERIES)
+        self._timing_n = [0.0] * MONITOR_DELIVERIES  # 1.0 where a delivery had one (a list: its sum is a count)
         self._timing_last = (0.0, 0.0)  # the last delivery's timing statistic (see _timing_statistic)
         self._inconsistent = False
         self._timing_suspect = False
@@ -1035,11 +1035,9 @@ class StarTrackerUnit:
         if not in_order:  # several heads: merge into time order (stable)
             order = np.argsort(tm, kind="stable")
             tm, qm, cm, wrong = tm[order], qm[order], cm[order], wrong[order]
-        accepted = np.zeros(len(tm), dtype=bool)
         first = 0
         if self.fusion.ekf is None:  # the first fix starts the filter
             self.fusion.start(self._new_filter(qm[0], cm[0], float(tm[0])))
-            accepted[0] = True
             first = 1
         # what the filter's checks demand holds by construction (sorted, finite, unit, SPD from Wahba)
         self._timing_last = (0.0, 0.0)
@@ -1065,13 +1063,16 @@ class StarTrackerUnit:
             # (and the bias) by ω δt; it is refused and the estimate is invalid until the timing is quiet again
             self._timing_suspect = True
             self._timing[:] = 0.0
-            self._timing_n[:] = 0.0
+            self._timing_n = [0.0] * MONITOR_DELIVERIES
             self._monitor_filled = 0
             self._timing_alarms += 1
             self.fusion.last_innovation_rad = np.zeros((0, 3))
+            accepted = np.zeros(len(tm), dtype=bool)
         elif fused is not None:
             accepted = fused
         else:
+            accepted = np.zeros(len(tm), dtype=bool)
+            accepted[:first] = True  # the first fix started the filter
             accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
         last_accepted, n_wrong, n_confident = filter_kernels.delivery_counts(accepted, wrong)
         any_accepted = last_accepted >= 0
@@ -1124,7 +1125,7 @@ class StarTrackerUnit:
             self._monitor_slot)
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
-        n_timing = float(self._timing_n.sum())  # ndarray.sum: np.sum's summation without its dispatch
+        n_timing = sum(self._timing_n)  # of 0.0 and 1.0: exact in any order
         timing_alarm = n_timing > 0 and float(self._timing.sum()) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
         # its samples' own NIS
@@ -1140,7 +1141,7 @@ class StarTrackerUnit:
             for a in ring:
                 a[:] = 0.0
             self._timing[:] = 0.0
-            self._timing_n[:] = 0.0
+            self._timing_n = [0.0] * MONITOR_DELIVERIES
             self._monitor_filled = 0
             self._inconsistent = True
             self._timing_suspect = self._timing_suspect or timing_alarm
@@ -1183,11 +1184,11 @@ class StarTrackerUnit:
 
     def _rate_axis(self):
         """The filter's body-rate direction (3,), for the timing test; None below :data:`TIMING_MIN_RATE_RAD_S`."""
-        w = self.fusion.ekf.omega_body
-        w_norm = math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
+        w0, w1, w2 = self.fusion.ekf.omega_body.tolist()  # Python floats: numpy's products, sum and quotients
+        w_norm = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
         if w_norm < TIMING_MIN_RATE_RAD_S:
             return None
-        return w / w_norm
+        return np.array([w0 / w_norm, w1 / w_norm, w2 / w_norm])
 
     @property
     def n_wrong_samples_total(self) -> int:

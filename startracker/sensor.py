@@ -830,20 +830,18 @@ class StarTracker:
             return replace(st, t_s=t_ref, q_body_to_icrs=q_ref, cov_theta_rad2=cov_ref, omega_body=omega + alpha * lever)
         t_m, w_m, cov_m = meas
         prev = st.rate_meas
-        lever = t_ref - t_m
+        alpha_known = False
         if prev is not None and 0.5 * self._frame_interval_s <= t_m - prev[0] <= self.coast_max_s:
-            # the acceleration from the two measurements, and the new rate carried to t_ref by it
             dtm = t_m - prev[0]
-            alpha, cov_alpha, omega, cov_w = sensor_kernels.rate_update(w_m, cov_m, prev[1], prev[2], dtm, dtm**2,
-                                                                        self._var_proc, lever, lever**2)
+            alpha, cov_alpha = sensor_kernels.rate_difference(w_m, cov_m, prev[1], prev[2], dtm, dtm**2)
             alpha_known = True
+        elif prev is not None and 0 <= t_m - prev[0] < 0.5 * self._frame_interval_s:
+            # Too close to the previous measurement to difference: keep the earlier one and its estimate.
+            alpha, cov_alpha, alpha_known, meas = st.alpha_body, st.cov_alpha, st.alpha_known, prev
         else:
-            if prev is not None and 0 <= t_m - prev[0] < 0.5 * self._frame_interval_s:
-                # Too close to the previous measurement to difference: keep the earlier one and its estimate.
-                alpha, cov_alpha, alpha_known, meas = st.alpha_body, st.cov_alpha, st.alpha_known, prev
-            else:
-                alpha, cov_alpha, alpha_known = np.zeros(3), np.zeros((3, 3)), False
-            omega, cov_w = sensor_kernels.rate_at(w_m, cov_m, alpha, cov_alpha + self._var_proc, lever, lever**2)
+            alpha, cov_alpha = np.zeros(3), np.zeros((3, 3))
+        lever = t_ref - t_m
+        omega, cov_w = sensor_kernels.rate_at(w_m, cov_m, alpha, cov_alpha + self._var_proc, lever, lever**2)
         return build_checked(MotionState, {"t_s": t_ref, "q_body_to_icrs": q_ref, "cov_theta_rad2": cov_ref,
                                     "omega_body": omega, "cov_omega": cov_w, "alpha_body": alpha,
                                     "cov_alpha": cov_alpha, "rate_meas": meas, "alpha_known": alpha_known})

@@ -15,7 +15,7 @@ from startracker.kernels.algebra import mahalanobis3
 from startracker.kernels.rotations import interpolate_rows, normalize_rows, relative_rotvec_rows
 
 __all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2", "smooth_instants", "accept_instants",
-           "wrong_sample_flags", "rate_difference", "rate_at", "rate_update", "any_nonpositive"]
+           "wrong_sample_flags", "rate_difference", "rate_at", "any_nonpositive"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -87,45 +87,6 @@ def rate_at(omega, cov_omega, alpha, cov_alpha, lever_s, lever2_s2):
         for j in range(3):
             cov[i, j] = cov_omega[i, j] + cov_alpha[i, j] * lever2_s2
     return w, cov
-
-
-@njit(cache=True, no_cfunc_wrapper=True)
-def rate_update(omega1, cov1, omega0, cov0, dt_s, dt2_s2, cov_process, lever_s, lever2_s2):
-    """The motion state's rates from a new rate measurement and the previous one, in one call: the acceleration
-    between them (:func:`rate_difference`), then the new rate carried ``lever_s`` along by it (:func:`rate_at`, with
-    the acceleration's covariance plus ``cov_process``: ``C_α + C_proc`` added element by element as numpy adds).
-
-    Parameters
-    ----------
-    omega1, omega0 : ndarray, shape (3,)
-        The new and the previous rate measurement, rad/s.
-    cov1, cov0 : ndarray, shape (3, 3)
-        Their covariances, (rad/s)².
-    dt_s, dt2_s2 : float
-        Time from the previous measurement to the new one, s (> 0), and its square as the caller computes it, s².
-    cov_process : ndarray, shape (3, 3)
-        Unmodelled change of the acceleration, (rad/s²)².
-    lever_s, lever2_s2 : float
-        Time from the new measurement to the state's time, s, and its square as the caller computes it, s².
-
-    Returns
-    -------
-    alpha : ndarray, shape (3,)
-        rad/s².
-    cov_alpha : ndarray, shape (3, 3)
-        (rad/s²)², without ``cov_process``.
-    omega_at : ndarray, shape (3,)
-        Rate at the state's time, rad/s.
-    cov_at : ndarray, shape (3, 3)
-        (rad/s)².
-    """
-    alpha, cov_alpha = rate_difference(omega1, cov1, omega0, cov0, dt_s, dt2_s2)
-    cov_total = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            cov_total[i, j] = cov_alpha[i, j] + cov_process[i, j]
-    w, cov_w = rate_at(omega1, cov1, alpha, cov_total, lever_s, lever2_s2)
-    return alpha, cov_alpha, w, cov_w
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

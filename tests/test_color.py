@@ -170,6 +170,23 @@ def _static(q):
     return lambda t: np.tile(q, (len(t), 1))
 
 
+def test_channel_magnitudes_follow_each_cameras_response():
+    """A channel's magnitude is V − 2.5 log10 e_c(B−V) of that camera's own response: the per-catalog table is shared
+    by equal responses (each env builds its own camera) and never by different ones."""
+    v = np.array([[0.05, -0.03, 1.0], [-0.08, 0.06, 1.0]])
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    cat = StarCatalog(hip=np.array([1, 2]), vectors=v, vmag=np.array([4.0, 4.5]), bv=np.array([-0.2, 1.4]))
+    plan = ExposurePlan(1, 0.05, frame_period_s=0.1)
+    narrow = ChannelResponse(bands_nm={"red": (620.0, 680.0), "green": (500.0, 560.0), "blue": (400.0, 440.0)})
+    for response in (ChannelResponse(), narrow, ChannelResponse(), narrow):
+        cc = ColorCamera.paper004(response=response)  # a new camera each time, as a new env makes
+        scenes = channel_scenes(cc, cat, _static(np.array([1.0, 0, 0, 0])), plan)
+        e = response.electrons(cat.bv)
+        for i, sc in enumerate(scenes):
+            order = np.argsort(sc.hip)
+            np.testing.assert_allclose(sc.vmag[order], cat.vmag - 2.5 * np.log10(e[:, i]), rtol=0, atol=1e-12)
+
+
 def test_channel_scenes_geometry_and_light_share():
     """Each channel's scene puts a star where that channel's optics do, with its colour's share of light."""
     cc = ColorCamera.paper004()

@@ -200,6 +200,24 @@ def test_paper004_presets_are_table1_and_plain_cmos():
     assert make_head("paper004_3cmos").sensor_model.name == "paper004_3cmos"
 
 
+def test_color_heads_share_one_ground_calibration():
+    """The 3CMOS unit's ground calibration is a property of the unit: every ColorHead holds the same fitted pair (built
+    once per process, not once per env), equal to a calibration run afresh with CALIBRATION_SEED."""
+    from startracker.color import ColorCamera, ColorRegistration, generate_rotary_table_data
+    from startracker.head import CALIBRATION_SEED
+
+    a, b = ColorHead(), make_head("paper004_3cmos")
+    assert a.registration is b.registration and a.color_camera is b.color_camera
+    rng = np.random.default_rng(CALIBRATION_SEED)
+    cam = ColorCamera.paper004(translation="table2")
+    fresh = ColorRegistration.calibrate(generate_rotary_table_data(cam, rng), rng=rng)
+    xy = np.array([[10.0, 20.0], [1032.0, 772.0], [2000.0, 1500.0]])
+    for ch in ("red", "blue"):
+        np.testing.assert_array_equal(a.registration.to_green(ch, xy), fresh.to_green(ch, xy))
+        np.testing.assert_array_equal(a.color_camera.project_channel(ch, np.array([[0.01, 0.02, 1.0]]))[0],
+                                      cam.project_channel(ch, np.array([[0.01, 0.02, 1.0]]))[0])
+
+
 def test_each_preset_has_its_own_detector_and_exposure():
     dets = {n: preset_spec(n).detector for n in PRESET_NAMES}
     keys = {(d.read_noise_e, d.dark_current_e_per_s, d.full_well_e, d.intensifier_gain, d.photometry.aperture_diameter_mm)

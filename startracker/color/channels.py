@@ -75,20 +75,22 @@ _SHIFT_CACHE: dict = {}
 
 
 def _channel_magnitude_shift(color_camera: ColorCamera, catalog: StarCatalog) -> np.ndarray:
-    """``2.5 log10 e_c(B−V)`` of every catalog star in every channel, (n_stars, 3): computed once per (frozen)
-    colour camera and catalog, since a star's channel magnitude is ``V`` minus it."""
-    key = (id(color_camera), id(catalog))
+    """``2.5 log10 e_c(B−V)`` of every catalog star in every channel, (n_stars, 3): computed once per spectral
+    response and catalog, since a star's channel magnitude is ``V`` minus it. The response is keyed by value: each
+    new env builds its own colour camera, and the Planck integrals over a whole catalog take ~150 ms."""
+    r = color_camera.response
+    key = (tuple(sorted(r.bands_nm.items())), r.qe_wavelength_nm, r.qe, r.step_nm, id(catalog))
     hit = _SHIFT_CACHE.get(key)
-    if hit is not None and hit[0] is color_camera and hit[1] is catalog:
-        return hit[2]
+    if hit is not None and hit[0] is catalog:
+        return hit[1]
     if len(catalog.bv):
-        shift = 2.5 * np.log10(color_camera.response.electrons(np.clip(catalog.bv, *BV_RANGE)))
+        shift = 2.5 * np.log10(r.electrons(np.clip(catalog.bv, *BV_RANGE)))
     else:
         shift = np.zeros((0, 3))
     shift.setflags(write=False)
     if len(_SHIFT_CACHE) > 16:
         _SHIFT_CACHE.clear()
-    _SHIFT_CACHE[key] = (color_camera, catalog, shift)
+    _SHIFT_CACHE[key] = (catalog, shift)
     return shift
 
 

@@ -16,7 +16,9 @@ Only the env is timed: the clock runs around ``env.reset`` and ``env.step`` and 
 computes the next action (the policy is the user's, not the env's cost). The floor is timed the same way, around
 the ``Spacecraft`` calls only.
 
-Each row gives steps/s and the ratio of its step time to the floor's (1.0 = free avionics). Then, with
+Each row gives steps/s and the ratio of its step time to the floor's (1.0 = free avionics). A second table gives,
+per configuration, what a new env costs once in a warm process: ``gym.make`` and its first ``reset`` (part of the
+steps/s above, since every run makes its own env), against a later reset. Then, with
 ``--vector-envs N`` (default 2; 0 skips it), the throughput a user gets from the default env on several cores, two
 ways: gymnasium's ``AsyncVectorEnv`` with N worker processes, 120° slews back to back (autoreset), timed around
 ``vec.step`` only (autoreset steps not counted); and N processes each running whole episodes as the default row does
@@ -29,7 +31,8 @@ Python, dispatch included; calls made inside compiled code are part of their cal
 numpy, the random draws), each in µs per step (medians over the repeats), with the kernels' time over the physics'
 and the steps/s of physics plus kernels alone: the ceiling of this configuration if every line of Python around the
 kernels cost nothing, with the kernels' arithmetic as it is. The timers add about 0.3 µs per timed call to the
-rest. Then the matcher table of ``bench_matching.py`` (DKVLUT vs compiled
+rest. The same budget is then split by the exposures per frame N of each step's frame (1, 2-14, >= 15): the
+multi-exposure frames near the top rate are where the compiled kernels' arithmetic dominates. Then the matcher table of ``bench_matching.py`` (DKVLUT vs compiled
 brute force vs scipy's cKDTree) when ``--matchers`` is given.
 
     python benchmarks/bench_env_speed.py [--quick] [--repeats 5] [--episodes 2] [--vector-envs 2] [--budget] [--matchers]
@@ -74,17 +77,27 @@ TARGETS = {
 def run_episodes(kwargs: dict, n_episodes: int, angle_deg: float, max_episode_s: float):
     """Whole episodes with the eigenaxis policy: (steps/s, steps, the actions of every step per episode).
 
-    The clock runs only inside ``env.reset`` and ``env.step``.
+    The clock runs only inside ``env.reset`` and ``env.step``. Also returned: the time of ``gym.make`` and of the
+    first ``env.reset`` of this new env and the mean of its later resets, s (what a campaign that makes an env per
+    run pays once per env, against what a reset costs).
     """
+    clock = time.perf_counter
+    t0 = clock()
     env = gym.make("startracker/AgileSlew-v0", max_episode_s=max_episode_s, **kwargs)
+    make_s = clock() - t0
     pol = EigenaxisSlewPolicy.from_env(env)
     actions, steps = [], 0
     wall = 0.0
-    clock = time.perf_counter
+    first_reset_s = 0.0
+    later_resets = []
     for k in range(n_episodes):
         t0 = clock()
         obs, _ = env.reset(seed=k, options={"slew_angle_deg": angle_deg})
         wall += clock() - t0
+        if k == 0:
+            first_reset_s = clock() - t0
+        else:
+            later_resets.append(clock() - t0)
         ep, done = [], False
         while not done:
             a = pol.act(obs)
@@ -98,7 +111,8 @@ def run_episodes(kwargs: dict, n_episodes: int, angle_deg: float, max_episode_s:
     control_period_s = env.unwrapped.control_period_s
     substep_s = env.unwrapped.avionics.gyro_period_s
     env.close()
-    return steps / wall, steps, actions, control_period_s, substep_s
+    later_reset_s = float(np.mean(later_resets)) if later_resets else float("nan")
+    return steps / wall, steps, actions, control_period_s, substep_s, make_s, first_reset_s, later_reset_s
 
 
 def physics_only(actions, control_period_s: float, substep_s: float) -> float:
@@ -177,6 +191,7 @@ def step_budget(kwargs: dict, n_episodes: int, angle_deg: float, max_episode_s: 
     totals = collections.Counter()
     clock = time.perf_counter
     steps, wall = 0, 0.0
+    by_n = {band: np.zeros(4) for band in N_BANDS}  # steps, env, physics, kernels (s)
     with timed_calls(totals):
         for k in range(n_episodes):
             t0 = clock()
@@ -185,15 +200,25 @@ def step_budget(kwargs: dict, n_episodes: int, angle_deg: float, max_episode_s: 
             done = False
             while not done:
                 a = pol.act(obs)
+                p0, k0 = totals["physics"], totals["kernels"]
                 t0 = clock()
-                obs, _, te, tr, _ = env.step(a)
-                wall += clock() - t0
+                obs, _, te, tr, info = env.step(a)
+                dt = clock() - t0
+                wall += dt
                 steps += 1
                 done = te or tr
+                n = info["exposures_per_frame"]
+                band = N_BANDS[0] if n == 1 else (N_BANDS[2] if n >= 15 else N_BANDS[1])
+                by_n[band] += (1.0, dt, totals["physics"] - p0, totals["kernels"] - k0)
     env.close()
     us = 1e6 / steps
     return {"env": wall * us, "physics": totals["physics"] * us, "kernels": totals["kernels"] * us,
-            "rest": (wall - totals["physics"] - totals["kernels"]) * us, "calls": totals["kernel calls"] / steps}
+            "rest": (wall - totals["physics"] - totals["kernels"]) * us, "calls": totals["kernel calls"] / steps,
+            "by_n": by_n}
+
+
+N_BANDS = ("1", "2-14", ">= 15")
+"""Bands of exposures per frame of :func:`step_budget`'s split (at rest, accelerating, near the top rate)."""
 
 
 def run_vector(kwargs: dict, n_envs: int, n_vec_steps: int, angle_deg: float, max_episode_s: float) -> float:
@@ -258,13 +283,15 @@ def main():
     max_s = 15.0 if args.quick else 40.0
 
     results = {}
+    new_env = {}
     floor = []
     for name, kw in CONFIGS.items():
         run_episodes(kw, 1, args.angle_deg, 2.0)  # warm-up: imports, databases, compiled kernels
     for _ in range(reps):  # interleaved, so the machine's load hits every row alike
         for name, kw in CONFIGS.items():
-            sps, steps, actions, cp, sub = run_episodes(kw, n_ep, args.angle_deg, max_s)
+            sps, steps, actions, cp, sub, make_s, reset_s, later_s = run_episodes(kw, n_ep, args.angle_deg, max_s)
             results.setdefault(name, []).append((sps, steps))
+            new_env.setdefault(name, []).append((make_s, reset_s, later_s))
             if name.startswith("default"):
                 floor.append(physics_only(actions, cp, sub))
     floor_sps = float(np.median(floor))
@@ -279,6 +306,14 @@ def main():
               f"{TARGETS.get(name, '')} |")
     print(f"| physics-only floor (same Spacecraft, same actions, same substeps) | {floor_sps:.0f} | "
           f"{min(floor):.0f} | {max(floor):.0f} | 1.00 | | |")
+    print()
+    print("A new env in a warm process (each run above makes its own; its first reset is in the steps/s), ms, median "
+          f"of {reps}")
+    print("| configuration | gym.make | first reset | a later reset |")
+    print("|---|---|---|---|")
+    for name, rows in new_env.items():
+        ms = [1e3 * float(np.median([r[i] for r in rows])) for i in range(3)]
+        print(f"| {name} | {ms[0]:.1f} | {ms[1]:.1f} | {ms[2]:.1f} |")
     if args.vector_envs > 0:
         n_vec = args.vector_envs
         one_env = float(np.median([r[0] for r in results["default (centroid, multi-exposure)"]]))
@@ -307,10 +342,26 @@ def main():
               "| kernels / physics | steps/s with no Python (physics + kernels) |")
         print("|---|---|---|---|---|---|---|---|")
         for name, runs in budgets.items():
-            med = {key: float(np.median([r[key] for r in runs])) for key in runs[0]}
+            med = {key: float(np.median([r[key] for r in runs])) for key in runs[0] if key != "by_n"}
             print(f"| {name} | {med['env']:.0f} | {med['physics']:.0f} | {med['kernels']:.0f} | {med['calls']:.1f} | "
                   f"{med['rest']:.0f} | {med['kernels'] / med['physics']:.2f} | "
                   f"{1e6 / (med['physics'] + med['kernels']):.0f} |")
+        print()
+        print("The same steps by the exposures per frame N of the step's frame (the paper 000 rule: N = 1 at rest, ~21 at "
+              f"20°/s), µs per step, median of {reps} runs")
+        print("| configuration | N | share of steps | share of time | env | physics | compiled kernels | the rest |")
+        print("|---|---|---|---|---|---|---|---|")
+        for name, runs in budgets.items():
+            for band in N_BANDS:
+                rows = [r["by_n"][band] for r in runs]
+                if min(row[0] for row in rows) == 0:
+                    continue
+                steps_share = np.median([row[0] / sum(r["by_n"][b][0] for b in N_BANDS) for row, r in zip(rows, runs)])
+                time_share = np.median([row[1] / sum(r["by_n"][b][1] for b in N_BANDS) for row, r in zip(rows, runs)])
+                env_us, phys_us, kern_us = (float(np.median([1e6 * row[i] / row[0] for row in rows])) for i in (1, 2, 3))
+                rest_us = float(np.median([1e6 * (row[1] - row[2] - row[3]) / row[0] for row in rows]))
+                print(f"| {name} | {band} | {100 * steps_share:.0f} % | {100 * time_share:.0f} % | {env_us:.0f} | "
+                      f"{phys_us:.0f} | {kern_us:.0f} | {rest_us:.0f} |")
     if args.matchers:
         import bench_matching
 

@@ -580,18 +580,9 @@ def compute_scene(
                           n_path_samples=n_path_samples, edge_margin_px=edge_margin_px, validate=validate)[0]
 
 
-def compute_scenes(
-    cameras: Sequence[Camera],
-    catalog: StarCatalog,
-    attitude: AttitudeLike,
-    plan: ExposurePlan,
-    t_frame_start: float = 0.0,
-    *,
-    bright_bodies: Sequence[BrightBody] = (),
-    n_path_samples: int = 3,
-    edge_margin_px: float = 6.0,
-    validate: bool = True,
-) -> tuple[Scene, ...]:
+def compute_scenes(cameras: Sequence[Camera], catalog: StarCatalog, attitude: AttitudeLike, plan: ExposurePlan,
+                   t_frame_start: float = 0.0, *, bright_bodies: Sequence[BrightBody] = (), n_path_samples: int = 3,
+                   edge_margin_px: float = 6.0, validate: bool = True) -> tuple[Scene, ...]:
     """:func:`compute_scene` for several cameras that image one frame together (a 3CMOS head's three channels).
 
     The same scenes as one :func:`compute_scene` call per camera, with the frame's instants (and a callable

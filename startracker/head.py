@@ -206,12 +206,16 @@ class ColorHead:
     def detections(self, catalog, truth, plan, t_frame, rng, fidelity="centroid", bright_bodies=()):
         """As :meth:`MonoHead.detections`; ``scene`` is the list of the three channel scenes (red, green, blue)
         and ``det`` the fused detections in green-channel pixels (intensity: the sum over the channels)."""
-        from startracker.color import channel_scenes, fuse_channel_centroids
+        from startracker.color import channel_scenes, fuse_channel_centroids, simulate_fused_detections
 
         scenes = channel_scenes(self.color_camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies, validate=False)
-        per_channel = [simulate_detections(sc, self.sensor_model, rng, fidelity=fidelity, validate=False) for sc in scenes]
-        fused = fuse_channel_centroids(per_channel, self.registration, gain_e_per_dn=self.sensor_model.gain_e_per_dn,
-                                       validate=False)
+        if fidelity == "centroid":  # the three channels' detections and their fusion in one compiled call
+            fused = simulate_fused_detections(scenes, self.sensor_model, rng, self.registration, validate=False)
+        else:
+            per_channel = [simulate_detections(sc, self.sensor_model, rng, fidelity=fidelity, validate=False)
+                           for sc in scenes]
+            fused = fuse_channel_centroids(per_channel, self.registration, gain_e_per_dn=self.sensor_model.gain_e_per_dn,
+                                           validate=False)
         n = len(fused)
         total = fused.total_intensity
         det = Centroids(fused.xy, total, np.full(n, 1, dtype=np.int64), np.zeros(n, dtype=bool), total, total)

@@ -48,6 +48,7 @@ __all__ = [
     "BrightBodyView",
     "Scene",
     "compute_scene",
+    "compute_scenes",
     "scene_from_tracks",
 ]
 
@@ -573,9 +574,36 @@ def compute_scene(
     followed by the rotation; a camera class with a projection of its own has its ``project`` applied to the rotated
     directions.
     """
+    if validate and not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a startracker.optics.Camera, got {type(camera).__name__}")
+    return compute_scenes((camera,), catalog, attitude, plan, t_frame_start, bright_bodies=bright_bodies,
+                          n_path_samples=n_path_samples, edge_margin_px=edge_margin_px, validate=validate)[0]
+
+
+def compute_scenes(cameras: Sequence[Camera], catalog: StarCatalog, attitude: AttitudeLike, plan: ExposurePlan,
+                   t_frame_start: float = 0.0, *, bright_bodies: Sequence[BrightBody] = (), n_path_samples: int = 3,
+                   edge_margin_px: float = 6.0, validate: bool = True) -> tuple[Scene, ...]:
+    """:func:`compute_scene` for several cameras that image one frame together (a 3CMOS head's three channels).
+
+    The same scenes as one :func:`compute_scene` call per camera, with the frame's instants (and a callable
+    attitude's values) computed once: the scenes share their ``times`` and ``path_times`` arrays.
+
+    Parameters
+    ----------
+    cameras : sequence of Camera
+    catalog, attitude, plan, t_frame_start, bright_bodies, n_path_samples, edge_margin_px, validate
+        As :func:`compute_scene` (``validate=False`` also takes ``cameras`` as a tuple of cameras).
+
+    Returns
+    -------
+    tuple of Scene
+        One per camera, in order.
+    """
     if validate:
-        if not isinstance(camera, Camera):
-            raise TypeError(f"camera must be a startracker.optics.Camera, got {type(camera).__name__}")
+        cameras = tuple(cameras)
+        for i, camera in enumerate(cameras):
+            if not isinstance(camera, Camera):
+                raise TypeError(f"cameras[{i}] must be a startracker.optics.Camera, got {type(camera).__name__}")
         if not isinstance(catalog, StarCatalog):
             raise TypeError(f"catalog must be a StarCatalog, got {type(catalog).__name__}")
         if not isinstance(plan, ExposurePlan):
@@ -592,44 +620,52 @@ def compute_scene(
     else:
         t0, s, margin, bodies = t_frame_start, n_path_samples, edge_margin_px, bright_bodies
 
-    (half_diag, q_cb, r_cb, pinhole, f_mm, k1, pix_mm, cx, cy, w_px, h_px, f_px) = _camera_constants(camera)
     n = plan.n_exposures
     start_steps, path_steps, mid_rows = _plan_offsets(plan, s)
     starts = (t0 + plan.start_offset_s) + start_steps
     path_times = np.add.outer(starts, path_steps)  # starts[:, None] + path_steps[None, :]
-    if pinhole is not None and not validate and isinstance(attitude, tuple) and len(attitude) == 2:
-        # the per-frame path: attitudes, cone search, projection and the kept stars' fields in one compiled call
-        r_cw, q_mid, q_cam_mid, idx, hip, vmag, bv, xy_path, visible = sk.scene_frame(
-            attitude[0], attitude[1], path_times.ravel(), q_cb, r_cb, s, *catalog.z_index, catalog.vectors, catalog.hip,
-            catalog.vmag, catalog.bv, half_diag, f_px, f_mm, k1, pix_mm, cx, cy, w_px, h_px, float(margin), *pinhole)
-    else:
-        q_bw = _evaluate_attitude(attitude, path_times.ravel(), validate)
-        r_cw, q_cam_mid, centre, drift = sk.camera_frames(q_bw, q_cb, r_cb, s)
-        radius = min(half_diag + drift + (margin + 2.0) / f_px + 1e-6, math.pi)
-        idx = catalog.cone_search(centre, radius, validate=False)  # a unit float64 centre, radius in (0, π]
-        if pinhole is not None:
-            keep, xy_path, visible = sk.project_scene(r_cw, catalog.vectors, idx, f_mm, k1, pix_mm, cx, cy, s, w_px,
-                                                      h_px, float(margin), *pinhole)
+    times = path_times[:, s // 2].copy()
+    sampled = not validate and isinstance(attitude, tuple) and len(attitude) == 2
+    q_bw = None
+    out = []
+    for camera in cameras:
+        (half_diag, q_cb, r_cb, pinhole, f_mm, k1, pix_mm, cx, cy, w_px, h_px, f_px) = _camera_constants(camera)
+        if pinhole is not None and sampled:
+            # the per-frame path: attitudes, cone search, projection and the kept stars' fields in one compiled call
+            r_cw, q_mid, q_cam_mid, idx, hip, vmag, bv, xy_path, visible = sk.scene_frame(
+                attitude[0], attitude[1], path_times.ravel(), q_cb, r_cb, s, *catalog.z_index, catalog.vectors,
+                catalog.hip, catalog.vmag, catalog.bv, half_diag, f_px, f_mm, k1, pix_mm, cx, cy, w_px, h_px,
+                float(margin), *pinhole)
         else:
-            v_cam = sk.rotate_to_camera(r_cw, catalog.vectors, idx)
-            xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
-            keep, xy_path, visible = sk.select_near_detector(
-                np.ascontiguousarray(xy, dtype=np.float64).reshape(n * s, len(idx), 2),
-                np.ascontiguousarray(in_front).reshape(n * s, len(idx)), s, w_px, h_px, float(margin))
-        idx = idx[keep]
-        hip, vmag, bv, q_mid = catalog.hip[idx], catalog.vmag[idx], catalog.bv[idx], q_bw[mid_rows]
+            if q_bw is None:
+                q_bw = _evaluate_attitude(attitude, path_times.ravel(), validate)
+            r_cw, q_cam_mid, centre, drift = sk.camera_frames(q_bw, q_cb, r_cb, s)
+            radius = min(half_diag + drift + (margin + 2.0) / f_px + 1e-6, math.pi)
+            idx = catalog.cone_search(centre, radius, validate=False)  # a unit float64 centre, radius in (0, π]
+            if pinhole is not None:
+                keep, xy_path, visible = sk.project_scene(r_cw, catalog.vectors, idx, f_mm, k1, pix_mm, cx, cy, s,
+                                                          w_px, h_px, float(margin), *pinhole)
+            else:
+                v_cam = sk.rotate_to_camera(r_cw, catalog.vectors, idx)
+                xy, _, in_front = camera.project(v_cam.reshape(-1, 3), return_in_front=True, validate=False)
+                keep, xy_path, visible = sk.select_near_detector(
+                    np.ascontiguousarray(xy, dtype=np.float64).reshape(n * s, len(idx), 2),
+                    np.ascontiguousarray(in_front).reshape(n * s, len(idx)), s, w_px, h_px, float(margin))
+            idx = idx[keep]
+            hip, vmag, bv, q_mid = catalog.hip[idx], catalog.vmag[idx], catalog.bv[idx], q_bw[mid_rows]
 
-    views = []
-    if bodies:
-        r_cw_mid = r_cw[mid_rows]
-        for b in bodies:
-            d_cam = np.einsum("tji,j->ti", r_cw_mid, np.asarray(b.direction_world))
-            views.append(BrightBodyView(b.name, np.arccos(np.clip(d_cam[:, 2], -1.0, 1.0)), d_cam))
+        views = []
+        if bodies:
+            r_cw_mid = r_cw[mid_rows]
+            for b in bodies:
+                d_cam = np.einsum("tji,j->ti", r_cw_mid, np.asarray(b.direction_world))
+                views.append(BrightBodyView(b.name, np.arccos(np.clip(d_cam[:, 2], -1.0, 1.0)), d_cam))
 
-    return build_checked(Scene, {
-        "camera": camera, "plan": plan, "t_frame_start": t0, "times": path_times[:, s // 2].copy(),
-        "path_times": path_times, "star_index": idx, "hip": hip, "vmag": vmag, "bv": bv, "xy_path": xy_path,
-        "visible": visible, "q_body_to_icrs": q_mid, "q_cam_to_icrs": q_cam_mid, "bright_bodies": tuple(views)})
+        out.append(build_checked(Scene, {
+            "camera": camera, "plan": plan, "t_frame_start": t0, "times": times, "path_times": path_times,
+            "star_index": idx, "hip": hip, "vmag": vmag, "bv": bv, "xy_path": xy_path, "visible": visible,
+            "q_body_to_icrs": q_mid, "q_cam_to_icrs": q_cam_mid, "bright_bodies": tuple(views)}))
+    return tuple(out)
 
 
 def scene_from_tracks(

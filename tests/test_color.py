@@ -162,7 +162,7 @@ from startracker.color import (  # noqa: E402
     render_color_frame,
 )
 from startracker.imaging import render_expected  # noqa: E402
-from startracker.rotations import quat_random  # noqa: E402
+from startracker.rotations import quat_multiply, quat_random  # noqa: E402
 from startracker.scene import ExposurePlan  # noqa: E402
 
 
@@ -483,3 +483,46 @@ def test_compiled_fusion_follows_the_fusion_rule(color_frames):
         np.testing.assert_allclose(got.color_ratio[both], [np.log(o[1][0] / o[1][2]) for o, b in zip(want, both) if b],
                                    rtol=1e-14)
         assert np.all(np.isnan(got.color_ratio[~both]))
+
+
+def test_fused_simulation_is_the_channels_simulated_then_fused(color_frames):
+    """The 3CMOS per-frame path (three channels' centroid-fidelity detections and their fusion in one compiled call)
+    gives exactly the fusion of the three channels simulated one by one, and leaves the generator where they do."""
+    from startracker.centroid import simulate_detections
+    from startracker.color import simulate_fused_detections
+
+    cc, reg, model, _ = color_frames
+    cat = load_catalog(7.0)
+    # a brighter sky and busy false objects, so that every kind of detection and both noise terms take part
+    busy = replace(model, cosmic_ray_rate_per_cm2_s=20.0, debris_rate_per_frame=2.0, hot_pixel_fraction=2e-5)
+    rng = np.random.default_rng(5)
+    n_fused = 0
+    for frame in range(6):
+        q = quat_random(rng)
+        omega = np.radians([0.0, 6.0 * frame, 2.0])  # still to smeared frames
+        plan = ExposurePlan(1, 0.02, frame_period_s=0.1)
+        t = np.linspace(0.0, 0.1, 11)
+        half = 0.5 * np.outer(t, omega)
+        ang = np.linalg.norm(half, axis=1, keepdims=True)
+        dq = np.hstack([np.cos(ang), np.where(ang > 0, np.sin(ang) / np.maximum(ang, 1e-300), 1.0) * half])
+        truth = (t, quat_multiply(np.tile(q, (len(t), 1)), dq))
+        scenes = channel_scenes(cc, cat, truth, plan)
+        for md, min_channels in ((model, 2), (busy, 1), (busy, 3)):
+            seed = int(rng.integers(1 << 31))
+            r1, r2 = np.random.default_rng(seed), np.random.default_rng(seed)
+            want = fuse_channel_centroids([simulate_detections(sc, md, r1) for sc in scenes], reg,
+                                          min_channels=min_channels, gain_e_per_dn=md.gain_e_per_dn)
+            got = simulate_fused_detections(scenes, md, r2, reg, min_channels=min_channels)
+            for name in ("xy", "intensity", "channel_index", "n_channels", "has_color", "color_ratio"):
+                np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+            assert r1.bit_generator.state == r2.bit_generator.state
+            n_fused += len(got)
+    assert n_fused > 100
+    with pytest.raises(TypeError, match="scenes"):
+        simulate_fused_detections(scenes[:2], model, rng, reg)
+    with pytest.raises(TypeError, match="registration"):
+        simulate_fused_detections(scenes, model, rng, None)
+    with pytest.raises(ValueError, match="min_channels"):
+        simulate_fused_detections(scenes, model, rng, reg, min_channels=0)
+    with pytest.raises(ValueError, match="match_radius_px"):
+        simulate_fused_detections(scenes, model, rng, reg, match_radius_px=-1.0)

@@ -11,6 +11,7 @@ from startracker.scene import (
     ExposurePlan,
     choose_n_exposures,
     compute_scene,
+    compute_scenes,
     min_image_speed_px_s,
     scene_from_tracks,
 )
@@ -417,3 +418,30 @@ def test_per_frame_scene_and_detections_are_complete_dataclasses():
     np.testing.assert_array_equal(plan.exposure_mid_times(np.float64(0.05)), plan.exposure_mid_times(0.05))
     np.testing.assert_allclose(plan.exposure_mid_times(0.05), 0.05 + 0.025 * np.arange(4) + 0.001, rtol=0, atol=1e-15)
     np.testing.assert_array_equal(scene.times, plan.exposure_mid_times(0.05))
+
+
+def test_scenes_of_cameras_imaging_one_frame_are_each_cameras_scene():
+    """compute_scenes (one frame, several cameras: the 3CMOS channels) gives each camera the scene compute_scene gives
+    it, with a sampled history (checked or not) or a callable, and a bright body; bad cameras are named."""
+    from startracker.color import ChannelCamera
+
+    mounted = CAM.with_mounting(quat_from_rotvec(np.array([0.0, 0.2, 0.0])))
+    small = Camera(resolution=(640, 512), pixel_size_um=5.5, focal_length_mm=16.0, distortion_k1_per_mm2=1e-4)
+    cams = (CAM, ChannelCamera.from_camera(small, rotation_rad=np.radians(3.0)), mounted, small)
+    q0 = quat_random(np.random.default_rng(8))
+    att = constant_rate(q0, np.radians([2.0, 1.0, 0.5]))
+    ts = np.linspace(0.0, 0.2, 21)
+    sun = [BrightBody("sun", np.array([0.3, 0.1, 0.9]))]
+    for attitude, validate in (((ts, att(ts)), False), ((ts, att(ts)), True), (att, True)):
+        plan = ExposurePlan(3, 2e-3)
+        got = compute_scenes(cams, CAT, attitude, plan, 0.05, bright_bodies=sun, validate=validate)
+        assert len(got) == len(cams)
+        for cam, sc in zip(cams, got):
+            want = compute_scene(cam, CAT, attitude, plan, 0.05, bright_bodies=sun, validate=validate)
+            assert sc.camera is cam and sc.n_stars > 0
+            for f in ("times", "path_times", "star_index", "hip", "vmag", "bv", "xy_path", "visible", "q_body_to_icrs",
+                      "q_cam_to_icrs"):
+                np.testing.assert_array_equal(getattr(sc, f), getattr(want, f))
+            np.testing.assert_array_equal(sc.bright_bodies[0].direction_cam, want.bright_bodies[0].direction_cam)
+    with pytest.raises(TypeError, match=r"cameras\[1\]"):
+        compute_scenes((CAM, "camera"), CAT, att, ExposurePlan(1, 1e-3), 0.0)

@@ -50,6 +50,7 @@ __all__ = [
     "CentroidErrorModel",
     "DEFAULT_ERROR_MODELS",
     "default_error_model",
+    "draw_centroid_inputs",
     "simulate_detections",
     "calibrate_error_model",
     "candidate_pairs",
@@ -204,9 +205,21 @@ _EMPTY_HOT = np.zeros(0)
 _EMPTY_HOT.setflags(write=False)
 
 
-def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: CentroidErrorModel, include_false: bool) -> Centroids:
-    """The centroid fidelity (module docstring): the draws of the frame, then one kernel call
-    (:func:`startracker.kernels.centroid.centroid_detections`)."""
+def draw_centroid_inputs(scene: Scene, model: SensorModel, rng, k_sigma: float, err: CentroidErrorModel,
+                         include_false: bool) -> tuple:
+    """The draws of one frame in the centroid fidelity, as the arguments of
+    :func:`startracker.kernels.centroid.centroid_detections` (in its order).
+
+    For a per-frame caller that runs that kernel inside a compiled call of its own (the 3CMOS head's three channels
+    and their fusion, :func:`startracker.color.simulate_fused_detections`); :func:`simulate_detections` is the checked
+    entry. Nothing is checked: ``scene``, ``model``, a float ``k_sigma`` and ``err`` as :func:`simulate_detections`
+    takes them. The draws, in order, are those of :func:`simulate_detections`' Notes.
+
+    Returns
+    -------
+    tuple
+        ``(xy_path, visible, star_pe, ..., n_cols, n_rows, kinds)``: the 25 arguments of ``centroid_detections``.
+    """
     n_cols, n_rows = scene.camera.resolution
     bg = background_field(scene, model)
     plan = scene.plan
@@ -235,11 +248,17 @@ def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: Cent
     else:
         z = rng.standard_normal((n_cand, 3))
         hot_idx, hot_rate, z_hot, f_lin, f_dn = _EMPTY_HOT_I, _EMPTY_HOT, _EMPTY_1, _EMPTY_I, _EMPTY_1
+    return (scene.xy_path, scene.visible, star_pe, fo.debris_xy0, fo.debris_velocity_px_s, debris_pe, t_start, t_end,
+            fo.cosmic_start_xy, fo.cosmic_end_xy, fo.cosmic_e, hot_idx, hot_rate, f_lin, f_dn,
+            u, z, z_hot, _background_vector(bg), _sensor_vector(model), _factor_vector(err), float(k_sigma),
+            n_cols, n_rows, _KINDS)
+
+
+def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: CentroidErrorModel, include_false: bool) -> Centroids:
+    """The centroid fidelity (module docstring): the draws of the frame (:func:`draw_centroid_inputs`), then one kernel
+    call (:func:`startracker.kernels.centroid.centroid_detections`)."""
     xy, inten, area, sat, peak, snr, star, expo, kind, truth_xy, bg_dn, noise_dn = ck.centroid_detections(
-        scene.xy_path, scene.visible, star_pe, fo.debris_xy0, fo.debris_velocity_px_s, debris_pe, t_start, t_end,
-        fo.cosmic_start_xy, fo.cosmic_end_xy, fo.cosmic_e, hot_idx, hot_rate, f_lin, f_dn,
-        u, z, z_hot, _background_vector(bg), _sensor_vector(model), _factor_vector(err), float(k_sigma),
-        n_cols, n_rows, _KINDS)
+        *draw_centroid_inputs(scene, model, rng, k_sigma, err, include_false))
     return build_checked(Centroids, {
         "xy": xy, "intensity": inten, "area": area, "saturated": sat, "peak": peak, "snr": snr, "background_dn": bg_dn,
         "noise_dn": noise_dn, "truth_star": star, "truth_exposure": expo, "truth_kind": kind, "truth_xy": truth_xy})

@@ -36,6 +36,7 @@ from startracker.color.fusion import (
     color_ratio_from_fluxes,
     fuse_channel_centroids,
     fuse_channel_images,
+    simulate_fused_detections,
 )
 from startracker.color.identify import ColorDatabase, ColorPruning, build_color_database, identify_color
 from startracker.color.registration import (
@@ -70,6 +71,7 @@ __all__ = [
     "fuse_channel_images",
     "FusedDetections",
     "fuse_channel_centroids",
+    "simulate_fused_detections",
     "aperture_photometry",
     "color_ratio_from_fluxes",
     "ColorDatabase",

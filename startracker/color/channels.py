@@ -1,6 +1,6 @@
 """3CMOS channel imaging: the three channel scenes of one frame and their images (paper 004).
 
-Single or multi-exposure (:func:`channel_scenes`, :func:`startracker.scene.compute_scene` per channel) and
+Single or multi-exposure (:func:`channel_scenes`, :func:`startracker.scene.compute_scenes` for the three channels) and
 their images (:func:`render_color_frame`, :func:`startracker.imaging.render_frame` per detector).
 """
 
@@ -14,7 +14,7 @@ from startracker.catalog import StarCatalog
 from startracker.color.camera import BV_RANGE, DEFAULT_RESPONSE, ChannelResponse, ColorCamera
 from startracker.imaging import FalseObjects, SensorModel, draw_false_objects, render_frame
 from startracker.optics import Camera
-from startracker.scene import ExposurePlan, Scene, compute_scene
+from startracker.scene import ExposurePlan, Scene, compute_scenes
 
 __all__ = [
     "paper004_sensor_model",
@@ -40,8 +40,8 @@ def channel_scenes(color_camera: ColorCamera, catalog: StarCatalog, attitude, pl
                    t_frame_start: float = 0.0, **scene_kwargs) -> tuple[Scene, Scene, Scene]:
     """The truth of one frame on each channel's detector (single or multi-exposure).
 
-    Each channel's scene comes from :func:`startracker.scene.compute_scene` with that channel's
-    :class:`ChannelCamera` (its own focal length, principal point, distortion and detector rotation).
+    Each channel's scene comes from :func:`startracker.scene.compute_scenes` (one frame, three cameras) with that
+    channel's :class:`ChannelCamera` (its own focal length, principal point, distortion and detector rotation).
     The stars' ``vmag`` in a channel's scene is the **channel magnitude**
     ``V − 2.5 log10(e_c(B−V))`` with ``e_c`` from ``color_camera.response``: rendered with a
     :class:`SensorModel` whose photometry describes the whole sensor (:func:`paper004_sensor_model`),
@@ -61,21 +61,19 @@ def channel_scenes(color_camera: ColorCamera, catalog: StarCatalog, attitude, pl
     if not isinstance(color_camera, ColorCamera):
         raise TypeError(f"color_camera must be a ColorCamera, got {type(color_camera).__name__}")
     shift = _channel_magnitude_shift(color_camera, catalog) if isinstance(catalog, StarCatalog) else None
-    out = []
-    for i, cam in enumerate(color_camera.channel_cameras):
-        sc = compute_scene(cam, catalog, attitude, plan, t_frame_start, **scene_kwargs)
+    scenes = compute_scenes(color_camera.channel_cameras, catalog, attitude, plan, t_frame_start, **scene_kwargs)
+    for i, sc in enumerate(scenes):
         if sc.n_stars:
             # a fresh scene nobody else holds: set its channel magnitudes in place rather than copy it
-            object.__setattr__(sc, "vmag", sc.vmag - shift[sc.star_index, i])
-        out.append(sc)
-    return tuple(out)
+            object.__setattr__(sc, "vmag", sc.vmag - shift[i][sc.star_index])
+    return scenes
 
 
 _SHIFT_CACHE: dict = {}
 
 
 def _channel_magnitude_shift(color_camera: ColorCamera, catalog: StarCatalog) -> np.ndarray:
-    """``2.5 log10 e_c(B−V)`` of every catalog star in every channel, (n_stars, 3): computed once per spectral
+    """``2.5 log10 e_c(B−V)`` of every catalog star in every channel, (3, n_stars): computed once per spectral
     response and catalog, since a star's channel magnitude is ``V`` minus it. The response is keyed by value: each
     new env builds its own colour camera, and the Planck integrals over a whole catalog take ~150 ms."""
     r = color_camera.response
@@ -84,9 +82,10 @@ def _channel_magnitude_shift(color_camera: ColorCamera, catalog: StarCatalog) ->
     if hit is not None and hit[0] is catalog:
         return hit[1]
     if len(catalog.bv):
-        shift = 2.5 * np.log10(r.electrons(np.clip(catalog.bv, *BV_RANGE)))
+        # one contiguous row per channel: a frame picks its stars' shifts from a row
+        shift = np.ascontiguousarray((2.5 * np.log10(r.electrons(np.clip(catalog.bv, *BV_RANGE)))).T)
     else:
-        shift = np.zeros((0, 3))
+        shift = np.zeros((3, 0))
     shift.setflags(write=False)
     if len(_SHIFT_CACHE) > 16:
         _SHIFT_CACHE.clear()

@@ -1,6 +1,7 @@
 """3CMOS fusion: the three channels registered into the green frame and merged (paper 004).
 
-The channels' centroids merged (:func:`fuse_channel_centroids`), or the registered images summed
+The channels' centroids merged (:func:`fuse_channel_centroids`; drawn and merged in one compiled call in the centroid
+fidelity: :func:`simulate_fused_detections`), or the registered images summed
 (:func:`fuse_channel_images`), and each star's colour ratio ``ln(red / blue)`` by aperture photometry
 (:func:`aperture_photometry`).
 """
@@ -13,14 +14,19 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from startracker.centroid.extraction import check_k_sigma
+from startracker.centroid.fidelity import default_error_model, draw_centroid_inputs
 from startracker.color.registration import ColorRegistration
-from startracker.kernels.color import fuse_channels
-from startracker.validation import as_float_array
+from startracker.imaging import SensorModel
+from startracker.kernels.color import fuse_channels, fused_centroid_detections
+from startracker.scene import Scene
+from startracker.validation import as_float_array, check_rng
 
 __all__ = [
     "fuse_channel_images",
     "FusedDetections",
     "fuse_channel_centroids",
+    "simulate_fused_detections",
     "aperture_photometry",
     "color_ratio_from_fluxes",
 ]
@@ -230,6 +236,59 @@ def _fuse(cs, registration: ColorRegistration, match_radius_px: float, min_chann
     area = [np.ascontiguousarray(c.area, dtype=np.float64) for c in cs]
     fused, it, idx, n_ch, ratio, has_color = fuse_channels(*xy, *inten, *area, noise, *_registration_arrays(registration),
                                                            match_radius_px, int(min_channels), gain_e_per_dn)
+    return FusedDetections(xy=fused, intensity=it, channel_index=idx, n_channels=n_ch, color_ratio=ratio,
+                           has_color=has_color)
+
+
+def simulate_fused_detections(scenes, model: SensorModel, rng: np.random.Generator, registration: ColorRegistration,
+                              *, k_sigma: float = 5.0, match_radius_px: float = 2.0, min_channels: int = 2,
+                              validate: bool = True) -> FusedDetections:
+    """The fused detections of a 3CMOS frame in the centroid fidelity, without the per-channel detection lists.
+
+    The same result, draw for draw, as :func:`startracker.centroid.simulate_detections` (``fidelity="centroid"``,
+    centre of mass, false objects included) on each channel's scene in turn, then :func:`fuse_channel_centroids` with
+    ``gain_e_per_dn = model.gain_e_per_dn``: the draws are made channel after channel, then the three channels'
+    detections and their fusion run in one compiled call (:func:`startracker.kernels.color.fused_centroid_detections`).
+
+    Parameters
+    ----------
+    scenes : sequence of 3 Scene
+        Red, green, blue (:func:`startracker.color.channel_scenes`).
+    model : SensorModel
+        Each channel's detector.
+    rng : numpy.random.Generator
+    registration : ColorRegistration
+    k_sigma : float
+        Detection threshold, background σ.
+    match_radius_px, min_channels
+        As :func:`fuse_channel_centroids`.
+    validate : bool
+        False skips the checks, for a per-frame caller passing three scenes, a SensorModel, a Generator, a
+        ColorRegistration, a float ``k_sigma`` and ``match_radius_px`` and an int ``min_channels``.
+
+    Returns
+    -------
+    FusedDetections
+    """
+    if validate:
+        scenes = tuple(scenes)
+        if len(scenes) != 3 or not all(isinstance(sc, Scene) for sc in scenes):
+            raise TypeError("scenes must be three startracker.scene.Scene objects (red, green, blue)")
+        if not isinstance(model, SensorModel):
+            raise TypeError(f"model must be a SensorModel, got {type(model).__name__}")
+        check_rng(rng)
+        if not isinstance(registration, ColorRegistration):
+            raise TypeError(f"registration must be a ColorRegistration, got {type(registration).__name__}")
+        k_sigma = check_k_sigma(k_sigma)
+        if not (np.isfinite(match_radius_px) and match_radius_px > 0):
+            raise ValueError(f"match_radius_px must be finite and > 0, got {match_radius_px}")
+        if min_channels not in (1, 2, 3):
+            raise ValueError(f"min_channels must be 1, 2 or 3, got {min_channels!r}")
+    err = default_error_model(model, "com")
+    inputs = [draw_centroid_inputs(sc, model, rng, k_sigma, err, True) for sc in scenes]
+    fused, it, idx, n_ch, ratio, has_color = fused_centroid_detections(
+        *inputs, *_registration_arrays(registration), float(match_radius_px), int(min_channels),
+        float(model.gain_e_per_dn))
     return FusedDetections(xy=fused, intensity=it, channel_index=idx, n_channels=n_ch, color_ratio=ratio,
                            has_color=has_color)
 

@@ -1,4 +1,5 @@
-"""3CMOS kernels: pairing the centroids of two colour channels, and the centroid-level fusion of three.
+"""3CMOS kernels: pairing the centroids of two colour channels, the centroid-level fusion of three, and a frame's
+three channels' centroid-fidelity detections fused in one call.
 
 The checked API and the fusion it serves are in :mod:`startracker.color.fusion`. Coordinates are pixels of one
 frame (the green channel's, after registration).
@@ -6,12 +7,15 @@ frame (the green channel's, after registration).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
+from startracker.kernels.centroid import centroid_detections
 from startracker.kernels.kvector import stable_argsort
 
-__all__ = ["mutual_nearest", "register_to_green", "fuse_channels"]
+__all__ = ["mutual_nearest", "register_to_green", "fuse_channels", "fused_centroid_detections"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -282,3 +286,35 @@ def fuse_channels(xy_r, xy_g, xy_b, inten_r, inten_g, inten_b, area_r, area_g, a
             has[t] = True
             ratio[t] = np.log(it[a, 0] / it[a, 2])
     return out_xy, out_it, out_idx, out_n, ratio, has
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def fused_centroid_detections(inputs_r, inputs_g, inputs_b, affine_r, x0_r, q_r, affine_b, x0_b, q_b, radius_px,
+                              min_channels, gain_e_per_dn):
+    """A 3CMOS frame's detections in the centroid fidelity, fused (:func:`startracker.color.simulate_fused_detections`):
+    each channel's :func:`startracker.kernels.centroid.centroid_detections`, then :func:`fuse_channels` on their
+    centroids, intensities, areas and noise σ (0 where not finite), in one call.
+
+    Parameters
+    ----------
+    inputs_r, inputs_g, inputs_b : tuple
+        Each channel's 25 arguments of ``centroid_detections`` (its scene and draws:
+        :func:`startracker.centroid.fidelity.draw_centroid_inputs`).
+    affine_r, x0_r, q_r, affine_b, x0_b, q_b, radius_px, min_channels, gain_e_per_dn
+        As :func:`fuse_channels`.
+
+    Returns
+    -------
+    xy, intensity, channel_index, n_channels, color_ratio, has_color
+        As :func:`fuse_channels`.
+    """
+    det_r = centroid_detections(*inputs_r)
+    det_g = centroid_detections(*inputs_g)
+    det_b = centroid_detections(*inputs_b)
+    noise = np.empty(3)
+    noise[0] = det_r[11] if math.isfinite(det_r[11]) else 0.0
+    noise[1] = det_g[11] if math.isfinite(det_g[11]) else 0.0
+    noise[2] = det_b[11] if math.isfinite(det_b[11]) else 0.0
+    return fuse_channels(det_r[0], det_g[0], det_b[0], det_r[1], det_g[1], det_b[1], det_r[2].astype(np.float64),
+                         det_g[2].astype(np.float64), det_b[2].astype(np.float64), noise, affine_r, x0_r, q_r, affine_b,
+                         x0_b, q_b, radius_px, min_channels, gain_e_per_dn)

@@ -384,6 +384,13 @@ class StarTracker:
         self._eye3 = _frozen(np.eye(3))
         self._var_gyro = _frozen(self.gyro_sigma_rad_s**2 * np.eye(3))
         self._var_proc = _frozen(self.accel_sigma_rad_s2**2 * np.eye(3))
+        # the lost path's covariances: a recovery's extra acceleration variance (None when 0: nothing added), and a
+        # prior's attitude and rate without a gyro (with one, _var_gyro); the last two writable like the per-frame
+        # covariances they stand for (one kernel signature; nothing writes them)
+        self._var_recovery = (None if self.recovery_accel_sigma_rad_s2**2 == 0
+                              else _frozen(self.recovery_accel_sigma_rad_s2**2 * self._eye3))
+        self._cov_prior = self.prior_sigma_rad**2 * np.eye(3)
+        self._var_rate_unknown = self.max_rate_rad_s**2 * np.eye(3)
         # the error of a frame's gyro acceleration (process_frame's alpha_body), alone and with the unmodelled change
         # (writable like the per-frame covariances they stand for: one kernel signature; nothing writes them)
         self._cov_alpha_gyro = 2.0 * self._var_gyro / self.frame_period_s**2
@@ -397,6 +404,7 @@ class StarTracker:
         model = camera_projection_model(camera)
         self._frame_model = None if model is None or matcher == "kdtree" else (*model, *map(int, camera.resolution))
         self._q_cam_to_body = _frozen(np.array(camera.q_cam_to_body, dtype=np.float64))
+        self._q_body_to_cam = rk.quat_conjugate(self._q_cam_to_body)  # writable: a read-only array compiles anew
         self._half_diag_fov_rad = float(camera.half_diagonal_fov_rad)
         self.reset()
 
@@ -580,16 +588,17 @@ class StarTracker:
         latency = 0.0
         st = self._state
         if st is not None and 0 <= t_exp[-1] - st.t_s <= self.coast_max_s:
-            att = self._track(xy, t_exp, st, gyro, t_frame, self.recovery_accel_sigma_rad_s2**2)
+            att = self._track(xy, t_exp, st, gyro, t_frame, self._var_recovery)
             latency += att.latency_ms
             if att.ok:
                 return self._accept(att, xy, t_exp, status=f"recovered by prediction after {t_exp[0] - st.t_s:.3f} s")
             tried.append(f"recovery failed ({att.status})")
         if prior is not None:
-            w = np.zeros(3) if gyro is None else gyro
-            var_w = self.gyro_sigma_rad_s**2 if gyro is not None else self.max_rate_rad_s**2
-            meas = None if gyro is None else self._previous_gyro(t_frame)
-            st = MotionState(t_frame, prior, self.prior_sigma_rad**2 * np.eye(3), w, var_w * np.eye(3), rate_meas=meas)
+            if gyro is None:
+                st = MotionState(t_frame, prior, self._cov_prior, np.zeros(3), self._var_rate_unknown)
+            else:
+                st = MotionState(t_frame, prior, self._cov_prior, gyro, self._var_gyro,
+                                 rate_meas=self._previous_gyro(t_frame))
             att = self._track(xy, t_exp, st, gyro, t_frame)
             latency += att.latency_ms
             if att.ok:
@@ -688,11 +697,11 @@ class StarTracker:
         w, cov_w = sensor_kernels.rate_at(gyro, var_g, alpha, cov_a_total, lever, lever**2)
         return w, alpha, cov_w, cov_a_total
 
-    def _track(self, xy, t_exp, st: MotionState, gyro, t_frame, extra_var_alpha: float = 0.0) -> _Attempt:
+    def _track(self, xy, t_exp, st: MotionState, gyro, t_frame, extra_cov_alpha=None) -> _Attempt:
         t0 = time.perf_counter()
         omega, alpha, cov_w, cov_a = self._propagation(st, gyro, t_frame)
-        if extra_var_alpha:
-            cov_a = cov_a + extra_var_alpha * self._eye3
+        if extra_cov_alpha is not None:
+            cov_a = cov_a + extra_cov_alpha
         # the largest propagation time of the frame is at one of its ends (t_exp increases)
         horizon = max(abs(float(t_exp[0]) - st.t_s), abs(float(t_exp[-1]) - st.t_s))
         sig_pred = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, cov_w, cov_a, horizon,
@@ -855,8 +864,9 @@ class StarTracker:
                         **self.identify_options)
 
     def _camera_to_body(self, res):
-        q_c2b = np.asarray(self.camera.q_cam_to_body)
-        q_body = quat_normalize(quat_multiply(res.q_cam_to_icrs, quat_conjugate(q_c2b)))
+        # the kernel layer on the identification's unit float64 attitude and the mounting's conjugate built once: the
+        # public functions' values without their checks
+        q_body = rk.quat_normalize(rk.quat_multiply(res.q_cam_to_icrs, self._q_body_to_cam))
         cov_cam = res.covariance_rad2
         if cov_cam is None or not np.all(np.isfinite(cov_cam)):
             s = max(res.residual_arcsec, 1.0) / RAD_TO_ARCSEC

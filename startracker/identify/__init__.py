@@ -189,22 +189,26 @@ def _identify_pyramid(xy, camera, intensities, database, opts, t0) -> Identifica
             n_hypotheses=n_hyp,
             covariance_rad2=cov,
         )
+    # a failure: the kernel's labels (all -1) and identity attitude are fresh arrays of the failure's values
     if code == STATUS_FEW:
         extra = f" ({k - n_usable} off the detector or duplicated)" if n_usable < k else ""
-        return _failure(k, "pyramid", t0, f"fewer than 3 usable detections{extra}")
-    status = {STATUS_PARALLEL: _PARALLEL, STATUS_RESIDUAL: _RESIDUAL}.get(code) or SEARCH_STATUS[code]
-    return _failure(k, "pyramid", t0, status, n_req, n_hyp)
+        return _failure(k, "pyramid", t0, f"fewer than 3 usable detections{extra}", star_ids=star_ids, q=q)
+    return _failure(k, "pyramid", t0, _PYRAMID_STATUS[code], n_req, n_hyp, star_ids, q)
 
 
 _PARALLEL = "final attitude rejected: vectors are parallel: attitude not observable"
 _RESIDUAL = "final attitude rejected: residual above the verification radius"
+_PYRAMID_STATUS = {STATUS_PARALLEL: _PARALLEL, STATUS_RESIDUAL: _RESIDUAL, **SEARCH_STATUS}  # by failure code
+_INF3 = np.full(3, np.inf)
 
 
-def _failure(k: int, method: str, t0: float, status: str, n_req: int = 0, n_hyp: int = 0) -> IdentificationResult:
+def _failure(k: int, method: str, t0: float, status: str, n_req: int = 0, n_hyp: int = 0, star_ids=None,
+             q=None) -> IdentificationResult:
+    """A failed identification; ``star_ids`` (k,) all -1 and ``q`` the identity may be given as fresh arrays."""
     return IdentificationResult(
         success=False,
-        star_ids=np.full(k, -1, dtype=np.int64),
-        q_cam_to_icrs=_IDENTITY.copy(),
+        star_ids=np.full(k, -1, dtype=np.int64) if star_ids is None else star_ids,
+        q_cam_to_icrs=_IDENTITY.copy() if q is None else q,
         n_matched=0,
         residual_arcsec=float("inf"),
         latency_ms=(time.perf_counter() - t0) * 1e3,
@@ -212,5 +216,5 @@ def _failure(k: int, method: str, t0: float, status: str, n_req: int = 0, n_hyp:
         method=method,
         n_required=n_req,
         n_hypotheses=n_hyp,
-        covariance_rad2=np.diag([np.inf] * 3),
+        covariance_rad2=np.diag(_INF3),
     )

@@ -483,6 +483,12 @@ def test_compiled_fusion_follows_the_fusion_rule(color_frames):
         np.testing.assert_allclose(got.color_ratio[both], [np.log(o[1][0] / o[1][2]) for o, b in zip(want, both) if b],
                                    rtol=1e-14)
         assert np.all(np.isnan(got.color_ratio[~both]))
+    # a channel whose noise is unknown (NaN) is weighted as noiseless: photon noise alone
+    unknown = [SimpleNamespace(**{**vars(c), "noise_dn": np.nan if ch == 1 else c.noise_dn}) for ch, c in enumerate(cs)]
+    noiseless = [SimpleNamespace(**{**vars(c), "noise_dn": 0.0 if ch == 1 else c.noise_dn}) for ch, c in enumerate(cs)]
+    got = fuse_channel_centroids(unknown, reg, min_channels=2, gain_e_per_dn=0.5)
+    want = _fusion_reference(noiseless, reg, 2.0, 2, 0.5)
+    np.testing.assert_allclose(got.xy, [o[0] for o in want], rtol=0, atol=1e-9)
 
 
 def test_fused_simulation_is_the_channels_simulated_then_fused(color_frames):

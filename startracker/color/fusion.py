@@ -8,7 +8,6 @@ fidelity: :func:`simulate_fused_detections`), or the registered images summed
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -230,7 +229,7 @@ def _fuse(cs, registration: ColorRegistration, match_radius_px: float, min_chann
           gain_e_per_dn: float) -> FusedDetections:
     """:func:`fuse_channel_centroids` on checked channel detections: one compiled call
     (:func:`startracker.kernels.color.fuse_channels`)."""
-    noise = np.array([float(c.noise_dn) if math.isfinite(c.noise_dn) else 0.0 for c in cs])
+    noise = np.array([float(c.noise_dn) for c in cs])
     xy = [np.ascontiguousarray(c.xy, dtype=np.float64).reshape(-1, 2) for c in cs]
     inten = [np.ascontiguousarray(c.intensity, dtype=np.float64) for c in cs]
     area = [np.ascontiguousarray(c.area, dtype=np.float64) for c in cs]

@@ -145,7 +145,7 @@ def fuse_channels(xy_r, xy_g, xy_b, inten_r, inten_g, inten_b, area_r, area_g, a
     area_r, area_g, area_b : ndarray, shape (K_c,)
         Areas, px.
     noise_dn : ndarray, shape (3,)
-        Background noise of each channel, DN (0 where unknown).
+        Background noise of each channel, DN (a non-finite value: unknown, taken as 0).
     affine_r, affine_b : ndarray, shape (2, 3)
         Registrations ``[A | b]`` of red and blue onto green.
     x0_r, x0_b : ndarray, shape (2,)
@@ -235,6 +235,9 @@ def fuse_channels(xy_r, xy_g, xy_b, inten_r, inten_g, inten_b, area_r, area_g, a
         if c >= min_channels:
             keep[k] = i
             k += 1
+    noise = np.empty(3)
+    for ch in range(3):
+        noise[ch] = noise_dn[ch] if math.isfinite(noise_dn[ch]) else 0.0
     xy = np.zeros((k, 2))
     it = np.zeros((k, 3))
     ch_idx = np.empty((k, 3), dtype=np.int64)
@@ -259,7 +262,7 @@ def fuse_channels(xy_r, xy_g, xy_b, inten_r, inten_g, inten_b, area_r, area_g, a
             else:
                 inten, area, px, py = inten_b[j], area_b[j], reg_b[j, 0], reg_b[j, 1]
             it_pos = max(inten, 1e-9)
-            w = 1.0 / ((it_pos / gain_e_per_dn + area * noise_dn[ch] ** 2) / (it_pos * it_pos))
+            w = 1.0 / ((it_pos / gain_e_per_dn + area * noise[ch] ** 2) / (it_pos * it_pos))
             wsum += w
             sx += w * px
             sy += w * py
@@ -293,7 +296,7 @@ def fused_centroid_detections(inputs_r, inputs_g, inputs_b, affine_r, x0_r, q_r,
                               min_channels, gain_e_per_dn):
     """A 3CMOS frame's detections in the centroid fidelity, fused (:func:`startracker.color.simulate_fused_detections`):
     each channel's :func:`startracker.kernels.centroid.centroid_detections`, then :func:`fuse_channels` on their
-    centroids, intensities, areas and noise σ (0 where not finite), in one call.
+    centroids, intensities, areas and noise σ, in one call.
 
     Parameters
     ----------
@@ -312,9 +315,9 @@ def fused_centroid_detections(inputs_r, inputs_g, inputs_b, affine_r, x0_r, q_r,
     det_g = centroid_detections(*inputs_g)
     det_b = centroid_detections(*inputs_b)
     noise = np.empty(3)
-    noise[0] = det_r[11] if math.isfinite(det_r[11]) else 0.0
-    noise[1] = det_g[11] if math.isfinite(det_g[11]) else 0.0
-    noise[2] = det_b[11] if math.isfinite(det_b[11]) else 0.0
+    noise[0] = det_r[11]
+    noise[1] = det_g[11]
+    noise[2] = det_b[11]
     return fuse_channels(det_r[0], det_g[0], det_b[0], det_r[1], det_g[1], det_b[1], det_r[2].astype(np.float64),
                          det_g[2].astype(np.float64), det_b[2].astype(np.float64), noise, affine_r, x0_r, q_r, affine_b,
                          x0_b, q_b, radius_px, min_channels, gain_e_per_dn)

@@ -68,8 +68,9 @@ def davenport_quaternion(s, q):
     for i in range(4):
         c3 += _cofactor4(n, i, i)
     c4 = 0.0  # det N, along the first row
+    row0 = np.int64(0)  # an int64, not a literal 0: the callee compiles once, not once per literal
     for j in range(4):
-        c4 += n[0, j] * _cofactor4(n, 0, j)
+        c4 += n[0, j] * _cofactor4(n, row0, j)
     lam = 1.0
     for _ in range(50):
         l2 = lam * lam
@@ -84,7 +85,7 @@ def davenport_quaternion(s, q):
     m = n.copy()
     for i in range(4):
         m[i, i] -= lam
-    best, best_v = 0, -1.0
+    best, best_v = row0, -1.0
     for i in range(4):
         d = abs(_cofactor4(m, i, i))
         if d > best_v:

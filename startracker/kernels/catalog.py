@@ -44,8 +44,9 @@ def cone_search_sorted_z(vectors_by_z, z_sorted, order, direction, radius_rad, c
     theta = math.acos(min(1.0, max(-1.0, direction[2])))
     z_lo = math.cos(min(math.pi, theta + radius_rad)) - 1e-9
     z_hi = math.cos(max(0.0, theta - radius_rad)) + 1e-9
-    lo = search_sorted(z_sorted, z_lo, False)
-    hi = search_sorted(z_sorted, z_hi, True)
+    # np.bool_: bools, not literals, as the other callers': the callee compiles once, not once per literal
+    lo = search_sorted(z_sorted, z_lo, np.bool_(False))
+    hi = search_sorted(z_sorted, z_hi, np.bool_(True))
     c2 = chord_max * chord_max
     out = np.empty(hi - lo, dtype=np.int64)
     n = 0

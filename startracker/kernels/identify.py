@@ -646,7 +646,8 @@ def verify_hypothesis(v, nav, cell_start, cell_stars, g, det0, nav0, rot0, have_
     if near >= 2:
         p3 = min(1.0, dens_eff_per_sr * math.pi * 9.0 * tol * tol)
         expected = (n - len(det)) * (p3 - p_tol)
-        if poisson_tail(expected, near) < misfit_p:
+        # np.int64: typing first sees the loop's literal 0 and would compile the callee for it too
+        if poisson_tail(expected, np.int64(near)) < misfit_p:
             return False, rot, empty, empty, n_req, np.inf
     acc = 0.0
     for t in range(len(dm)):

@@ -110,13 +110,8 @@ def _bucket_argsort(values, order, keys):
         elif v > hi:
             hi = v
     scale = (n - 1) / (hi - lo) if hi > lo else 0.0
-    if not (scale < np.inf):  # a range so small (subnormal) its inverse overflows
-        for i in range(n):
-            order[i] = i
-        _merge_argsort(values, order, 0, n, np.empty(n, dtype=np.int64))
-        for i in range(n):
-            keys[i] = values[order[i]]
-        return
+    if not (scale < np.inf):  # a range so small (subnormal) its inverse overflows: one bin, merge-sorted below
+        scale = 0.0
     start = np.zeros(n + 1, dtype=np.int64)
     bins = np.empty(n, dtype=np.int64)
     top = n - 1
@@ -141,7 +136,7 @@ def _bucket_argsort(values, order, keys):
         start[b] = p + 1
     if crowded:
         tmp = np.empty(n, dtype=np.int64)
-        a = 0
+        a = np.int64(0)  # not a literal 0, which typing would first see and compile _merge_argsort for too
         for b in range(n):
             e = start[b]
             if e - a > 32:
@@ -236,11 +231,12 @@ def sort_values(a):
     # heapsort: build a max-heap, then move the maximum to the end n - 1 times
     for start in range(n // 2 - 1, -1, -1):
         _sift_down(out, start, n)
+    root = np.int64(0)  # an int64, not a literal 0: the callee compiles once, not once per literal
     for end in range(n - 1, 0, -1):
         top = out[0]
         out[0] = out[end]
         out[end] = top
-        _sift_down(out, 0, end)
+        _sift_down(out, root, end)
     return out
 
 

@@ -297,9 +297,10 @@ def interpolate_rows(t, q, tq):
     out = np.empty((nq, 4))
     rv = np.empty((1, 3))
     step = np.empty((1, 4))
+    row0 = np.int64(0)  # an int64, not a literal 0: the callees compile once, as for the other callers
     for k in range(nq):
         x = min(max(tq[k], t[0]), t[s - 1])
-        i = search_sorted(t, x, False) - 1
+        i = search_sorted(t, x, np.bool_(False)) - 1  # a bool, not a literal (one compiled signature)
         if i < 0:
             i = 0
         if i > s - 2:
@@ -311,8 +312,8 @@ def interpolate_rows(t, q, tq):
         dx = aw * bx + ax * bw + ay * bz - az * by
         dy = aw * by - ax * bz + ay * bw + az * bx
         dz = aw * bz + ax * by - ay * bx + az * bw
-        _log_into(dw, dx, dy, dz, rv, 0)
-        _exp_into(alpha * rv[0, 0], alpha * rv[0, 1], alpha * rv[0, 2], step, 0)
+        _log_into(dw, dx, dy, dz, rv, row0)
+        _exp_into(alpha * rv[0, 0], alpha * rv[0, 1], alpha * rv[0, 2], step, row0)
         w1, x1, y1, z1 = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
         w2, x2, y2, z2 = step[0, 0], step[0, 1], step[0, 2], step[0, 3]
         tmp = np.empty(4)

@@ -67,7 +67,7 @@ def interpolate_attitudes(t_samples, q_samples, t_query):
     r = np.empty(4)
     for i in range(n_q):
         t = min(max(t_query[i], t_samples[0]), t_samples[n_s - 1])
-        k = search_sorted(t_samples, t, False) - 1  # side="left"
+        k = search_sorted(t_samples, t, np.bool_(False)) - 1  # side="left"; a bool, not a literal: one signature
         if k < 0:
             k = 0
         if k > n_s - 2:

@@ -15,7 +15,7 @@ from startracker.kernels.algebra import mahalanobis3
 from startracker.kernels.rotations import interpolate_rows, normalize_rows, relative_rotvec_rows
 
 __all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2", "smooth_instants", "accept_instants",
-           "wrong_sample_flags", "rate_difference", "rate_at", "any_nonpositive"]
+           "wrong_sample_flags", "rate_difference", "rate_at", "any_nonpositive", "true_indices", "gather_instants"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -254,8 +254,14 @@ def instant_deleted_chi2(q_ref, q_sol, cov_sol, tau_s, degree):
     n = q_sol.shape[0]
     p = degree + 1
     theta = relative_rotvec_rows(q_ref, q_sol)
-    t0 = tau_s.mean()
-    span = max(tau_s.max() - tau_s.min(), 1e-12)
+    # mean, max and min by loops (the same values as numba's in-order ones): its reductions compile for seconds
+    acc, hi, lo = 0.0, tau_s[0], tau_s[0]
+    for k in range(n):
+        acc += tau_s[k]
+        hi = max(hi, tau_s[k])
+        lo = min(lo, tau_s[k])
+    t0 = acc / n
+    span = max(hi - lo, 1e-12)
     x = np.empty((n, p))
     for k in range(n):
         u = (tau_s[k] - t0) / span
@@ -298,21 +304,68 @@ def _argmax_first(v):
     return worst
 
 
-@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _gather_instants(idx, t, q_pred, q_sol, cov):
-    """The rows ``idx`` of an instants' time (N,), predicted and solved attitudes (N, 4) and covariances (N, 3, 3),
-    as fresh contiguous arrays."""
+@njit(cache=True, no_cfunc_wrapper=True)
+def true_indices(mask):
+    """``numpy.flatnonzero(mask)`` of a 1-D bool array, int64 (m,) (numba's compiles one more function).
+
+    Parameters
+    ----------
+    mask : ndarray of bool, shape (n,)
+
+    Returns
+    -------
+    ndarray of int64, shape (m,)
+        Indices of the true entries, ascending.
+    """
+    m = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            m += 1
+    out = np.empty(m, dtype=np.int64)
+    m = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            out[m] = i
+            m += 1
+    return out
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def gather_instants(idx, t, q_pred, q_sol, cov):
+    """The rows ``idx`` of an instants' times, predicted and solved attitudes and covariances, as fresh contiguous
+    arrays (``t[idx]``, ...: numba's fancy indexing compiles far more code).
+
+    Parameters
+    ----------
+    idx : ndarray of int64, shape (m,)
+        Rows.
+    t : ndarray, shape (N,)
+        Times, s.
+    q_pred, q_sol : ndarray, shape (N, 4)
+        Quaternions.
+    cov : ndarray, shape (N, 3, 3)
+        Covariances, rad².
+
+    Returns
+    -------
+    t_s : ndarray, shape (m,)
+    q_pred_rows, q_sol_rows : ndarray, shape (m, 4)
+    cov_rows : ndarray, shape (m, 3, 3)
+    """
     m = idx.shape[0]
     ts = np.empty(m)
     qp = np.empty((m, 4))
     qs = np.empty((m, 4))
     cs = np.empty((m, 3, 3))
-    for k in range(m):
+    for k in range(m):  # element loops: a row assignment compiles numba's shape check and its message
         j = idx[k]
         ts[k] = t[j]
-        qp[k] = q_pred[j]
-        qs[k] = q_sol[j]
-        cs[k] = cov[j]
+        for a in range(4):
+            qp[k, a] = q_pred[j, a]
+            qs[k, a] = q_sol[j, a]
+        for a in range(3):
+            for b in range(3):
+                cs[k, a, b] = cov[j, a, b]
     return ts, qp, qs, cs
 
 
@@ -343,16 +396,19 @@ def smooth_instants(q_pred, q_sol, cov_sol, tau_s, gate):
         Rows kept (ascending); all ``n`` rows when every instant passes or the test cannot tell.
     """
     n = tau_s.shape[0]
-    idx = np.arange(n)
+    idx = np.empty(n, dtype=np.int64)
+    for k in range(n):
+        idx[k] = k
     if n < 3 or gate == np.inf:
         return idx
     if n == 3:
-        chi2 = instant_deleted_chi2(q_pred, q_sol, cov_sol, tau_s, 1)
+        # degree n - 2 = 1, an int64 as the loop's below, not a literal: one compiled signature of the callee
+        chi2 = instant_deleted_chi2(q_pred, q_sol, cov_sol, tau_s, n - 2)
         return idx if not chi2[0] > gate else idx[:0]
     m = n
     while m >= 4:
         degree = 2 if m >= 6 else 1
-        ts, qp, qs, cs = _gather_instants(idx[:m], tau_s, q_pred, q_sol, cov_sol)
+        ts, qp, qs, cs = gather_instants(idx[:m], tau_s, q_pred, q_sol, cov_sol)
         chi2 = instant_deleted_chi2(qp, qs, cs, ts, degree)
         worst = _argmax_first(chi2)
         if not chi2[worst] > gate:
@@ -404,7 +460,7 @@ def accept_instants(sel, t_exp, q_pred, q_all, cov_all, rms_arcsec, n_stars, gat
         Scaled covariances, rad².
     n : ndarray of int64, shape (m,)
     """
-    ts, qp, qs, cs = _gather_instants(sel, t_exp, q_pred, q_all, cov_all)
+    ts, qp, qs, cs = gather_instants(sel, t_exp, q_pred, q_all, cov_all)
     keep = smooth_instants(qp, qs, cs, ts, gate)
     m = keep.shape[0]
     kept = np.empty(m, dtype=np.int64)
@@ -412,15 +468,19 @@ def accept_instants(sel, t_exp, q_pred, q_all, cov_all, rms_arcsec, n_stars, gat
     q = np.empty((m, 4))
     cov = np.empty((m, 3, 3))
     n = np.empty(m, dtype=np.int64)
-    factor = np.ones(m)
+    factor = np.empty(m)
     grow = False
     for k in range(m):
         j = sel[keep[k]]
         kept[k] = j
         t_s[k] = ts[keep[k]]
-        q[k] = qs[keep[k]]
-        cov[k] = cs[keep[k]]
+        for a in range(4):  # element loops, as gather_instants
+            q[k, a] = qs[keep[k], a]
+        for a in range(3):
+            for b in range(3):
+                cov[k, a, b] = cs[keep[k], a, b]
         n[k] = n_stars[j]
+        factor[k] = 1.0
         if scale:
             dof_share = max(1.0 - 1.5 / float(n_stars[j]), 0.25)
             ratio = rms_arcsec[j] / residual_expected_arcsec

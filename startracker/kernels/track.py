@@ -20,7 +20,7 @@ from startracker.kernels.attitude import solve_wahba_one
 from startracker.kernels.catalog import cone_search_angle
 from startracker.kernels.kvector import kvector_fill, median_value, sort_values
 from startracker.kernels.rotations import normalize_rows
-from startracker.kernels.sensor import accept_instants, innovation_chi2_mean
+from startracker.kernels.sensor import accept_instants, gather_instants, innovation_chi2_mean, true_indices
 
 __all__ = [
     "propagate_attitudes",
@@ -76,6 +76,9 @@ def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
     r = np.empty((n, 3, 3))
     dq = np.empty(4)
     qc = np.empty(4)
+    qm = np.empty(4)  # a writable copy of the (read-only) mounting: quat_multiply_into compiles once, not twice
+    for k in range(4):
+        qm[k] = q_cam_to_body[k]
     mid = np.zeros(3)
     for i in range(n):
         t = dt[i]
@@ -94,7 +97,7 @@ def propagate_attitudes(q0, omega, alpha, dt, q_cam_to_body):
         dq[3] = scale * rz
         quat_multiply_into(q0, dq, q_body[i])
         quat_normalize_canonical(q_body[i])
-        quat_multiply_into(q_body[i], q_cam_to_body, qc)
+        quat_multiply_into(q_body[i], qm, qc)
         quat_to_rotation(qc, r[i])
         for k in range(3):
             mid[k] += r[i, k, 2]
@@ -589,7 +592,10 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
     b = np.zeros((n_instants, kmax, 3))
     r = np.zeros((n_instants, kmax, 3))
     m = np.zeros((n_instants, kmax), dtype=np.bool_)
-    slot_q = np.full((n_instants, kmax), -1, dtype=np.int64)
+    slot_q = np.empty((n_instants, kmax), dtype=np.int64)  # -1 (empty slot); not np.full: one compile less
+    for i in range(n_instants):
+        for s in range(kmax):
+            slot_q[i, s] = -1
     fill = np.zeros(n_instants, dtype=np.int64)
     for q in range(k_n):
         p = assign[q]
@@ -736,10 +742,13 @@ def track_frame(q_body, r_cam_to_icrs, cand, catalog_vectors, focal_length_mm, k
     for j in range(k_n):
         if assign[j] >= 0:
             n_matched += 1
-    sel = np.flatnonzero(ok)
+    sel = true_indices(ok)
     nis = 0.0
     if sel.shape[0]:
-        nis = innovation_chi2_mean(q_body[sel], q[sel], cov[sel], t_exp[sel] - t_ref, cov_theta, cov_omega, cov_alpha)
+        t_s, q_body_s, q_s, cov_s = gather_instants(sel, t_exp, q_body, q, cov)
+        for i in range(t_s.shape[0]):
+            t_s[i] -= t_ref
+        nis = innovation_chi2_mean(q_body_s, q_s, cov_s, t_s, cov_theta, cov_omega, cov_alpha)
     return n_pred, n_matched, q, cov, rms, n_used, ok, nis
 
 
@@ -817,7 +826,7 @@ def track_frame_from_state(q_state, omega, alpha, t_exp, t_ref, q_cam_to_body, h
         q_pred, r_c2i, cand, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot,
         width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad, min_stars, outlier_threshold_rad, t_exp, t_ref,
         cov_theta, cov_omega, cov_alpha, obs_intensity, star_flux, flux_ratio_max)
-    accepted = accept_instants(np.flatnonzero(ok), t_exp, q_pred, q, cov, rms, n_used, instant_gate,
+    accepted = accept_instants(true_indices(ok), t_exp, q_pred, q, cov, rms, n_used, instant_gate,
                                residual_expected_arcsec, scale_by_residuals)
     return (n_pred, n_matched, rms, n_used, ok, nis) + accepted
 

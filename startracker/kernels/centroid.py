@@ -56,7 +56,7 @@ def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, p
                       peak_f, photon_f, bg_f, lock_f, min_log_ratio, intensified)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _theory_se(s_units, gain, f2, se2, se, sigma_o, c_splash, length, var_b, sd_b, thr_e, peak_f, photon_f, bg_f, lock_f,
                min_log_ratio, intensified):
     """:func:`_theory` given ``se2 = σ² + 1/12``, ``se = √se2`` and ``sd_b = √var_b`` (constant over a frame's spots

@@ -12,6 +12,8 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.kvector import stable_argsort_into
+
 __all__ = [
     "sparse_components",
     "measure_components",
@@ -266,11 +268,17 @@ def rank_components(intensity, area, noise, min_area_px):
         if area[k] >= min_area_px and intensity[k] > 0:
             sel[n] = k
             n += 1
-    sel = sel[:n]
-    order = np.argsort(-intensity[sel], kind="mergesort")
-    keep = sel[order]
+    # stable order of the negated intensities: np.argsort(-intensity[sel], kind="mergesort"), by the project's
+    # stable sort (the same permutation; numba's argsort compiles for seconds)
+    neg = np.empty(n)
+    for i in range(n):
+        neg[i] = -intensity[sel[i]]
+    order = np.empty(n, dtype=np.int64)
+    stable_argsort_into(neg, order)
+    keep = np.empty(n, dtype=np.int64)
     snr = np.empty(n)
     for i in range(n):
+        keep[i] = sel[order[i]]
         k = keep[i]
         snr[i] = intensity[k] / (max(noise[k], 1e-9) * math.sqrt(area[k]))
     return keep, snr

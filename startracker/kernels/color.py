@@ -76,7 +76,7 @@ def mutual_nearest(a, b, radius_px):
     return out_i, out_j
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def register_to_green(xy, affine, x0, q_per_px2):
     """A channel's pixel coordinates in the green frame (paper 004 eqs. 17-18, :meth:`ChannelRegistration.apply`).
 
@@ -110,7 +110,7 @@ def register_to_green(xy, affine, x0, q_per_px2):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _free(n, paired):
     """Increasing indices in ``range(n)`` that ``paired`` (−1: none) does not hold."""
     used = np.zeros(n, dtype=np.bool_)
@@ -126,7 +126,7 @@ def _free(n, paired):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def fuse_channels(xy_r, xy_g, xy_b, inten_r, inten_g, inten_b, area_r, area_g, area_b, noise_dn, affine_r, x0_r, q_r,
                   affine_b, x0_b, q_b, radius_px, min_channels, gain_e_per_dn):
     """Centroid-level fusion of the red, green and blue detections of a frame (:func:`startracker.color.fusion.
@@ -190,10 +190,13 @@ def fuse_channels(xy_r, xy_g, xy_b, inten_r, inten_g, inten_b, area_r, area_g, a
     if free_r.shape[0] and free_b.shape[0]:
         fr = np.empty((free_r.shape[0], 2))
         fb = np.empty((free_b.shape[0], 2))
+        # element copies: a row assignment compiles numba's shape check and its error message
         for t in range(free_r.shape[0]):
-            fr[t] = reg_r[free_r[t]]
+            fr[t, 0] = reg_r[free_r[t], 0]
+            fr[t, 1] = reg_r[free_r[t], 1]
         for t in range(free_b.shape[0]):
-            fb[t] = reg_b[free_b[t]]
+            fb[t, 0] = reg_b[free_b[t], 0]
+            fb[t, 1] = reg_b[free_b[t], 1]
         ri, bi = mutual_nearest(fr, fb, radius_px)
     else:
         ri = np.zeros(0, dtype=np.int64)
@@ -281,9 +284,11 @@ def fuse_channels(xy_r, xy_g, xy_b, inten_r, inten_g, inten_b, area_r, area_g, a
     has = np.zeros(k, dtype=np.bool_)
     for t in range(k):
         a = order[t]
-        out_xy[t] = xy[a]
-        out_it[t] = it[a]
-        out_idx[t] = ch_idx[a]
+        out_xy[t, 0] = xy[a, 0]  # element copies: a row assignment compiles numba's shape check (seconds)
+        out_xy[t, 1] = xy[a, 1]
+        for ch in range(3):
+            out_it[t, ch] = it[a, ch]
+            out_idx[t, ch] = ch_idx[a, ch]
         out_n[t] = n_ch[a]
         if ch_idx[a, 0] >= 0 and ch_idx[a, 2] >= 0 and it[a, 0] > 0.0 and it[a, 2] > 0.0:
             has[t] = True

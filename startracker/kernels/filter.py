@@ -40,7 +40,7 @@ __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat
            "gyro_jump_looks", "delivery_rows", "delivery_counts", "append_intervals"]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd):
     w2 = wx * wx + wy * wy + wz * wz
     th2 = w2 * dt * dt
@@ -91,7 +91,7 @@ def _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd):
         qd[i + 3, i + 3] = q22
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def transition(w_hat, dt, sigma_v, sigma_u):
     """State transition and process noise of the error state over one gyro interval.
 
@@ -119,7 +119,7 @@ def transition(w_hat, dt, sigma_v, sigma_u):
     return phi, qd
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _predict_cov_into(P, phi, qd, tmp, out):
     """out = Φ P Φᵀ + Q (out may be P)."""
     for i in range(6):
@@ -136,7 +136,7 @@ def _predict_cov_into(P, phi, qd, tmp, out):
             out[i, j] = s + qd[i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def ekf_predict(x, P, F, Q):
     """filterpy's ``ExtendedKalmanFilter.predict`` (no control input): ``x ← F x``, ``P ← F P Fᵀ + Q``.
 
@@ -165,7 +165,7 @@ def ekf_predict(x, P, F, Q):
     return x_new, P_new
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _inv3_sym_into(s, out):
     """Inverse of a symmetric positive-definite (3, 3) matrix by the adjugate (upper triangle read)."""
     a, b, c = s[0, 0], s[0, 1], s[0, 2]
@@ -185,7 +185,7 @@ def _inv3_sym_into(s, out):
     out[2, 2] = c22 / det
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _update_into(x, P, y0, y1, y2, R, s_inv, k, kr, tmp, x_out, P_out):
     """Kalman update with H = [I 0] for the residual y (given S⁻¹): x_out = x + K y, Joseph-form P_out (may be P).
 
@@ -210,7 +210,7 @@ def _update_into(x, P, y0, y1, y2, R, s_inv, k, kr, tmp, x_out, P_out):
             P_out[j, i] = v
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _predict_model_cov_into(P, phi, qd, m1, m2):
     """P ← Φ P Φᵀ + Q in place for the model's Φ = [[A, B], [0, I]] and a symmetric P.
 
@@ -244,7 +244,7 @@ def _predict_model_cov_into(P, phi, qd, m1, m2):
             P[i + 3, j + 3] += qd[i + 3, j + 3]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def ekf_update(x, P, z, R):
     """filterpy's ``ExtendedKalmanFilter.update`` for ``H = [I₃, 0]``, ``h(x) = x[:3]`` (Joseph form).
 
@@ -280,7 +280,7 @@ def ekf_update(x, P, z, R):
     return x_new, P_new
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _residual(qw, qx, qy, qz, mw, mx, my, mz):
     """Rotation vector of q̂* ⊗ q_meas, sign-invariant (the shorter rotation)."""
     w = qw * mw + qx * mx + qy * my + qz * mz
@@ -296,7 +296,7 @@ def _residual(qw, qx, qy, qz, mw, mx, my, mz):
     return k * x, k * y, k * z
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def attitude_residual(q_est, q_meas):
     """Innovation of an attitude sample: the rotation vector of ``q_est* ⊗ q_meas`` (body frame).
 
@@ -316,7 +316,7 @@ def attitude_residual(q_est, q_meas):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _rotate_by(q, rx, ry, rz):
     """q ← normalise(q ⊗ exp(r)) in place, r a body-frame rotation vector (rad)."""
     th2 = rx * rx + ry * ry + rz * rz
@@ -337,7 +337,7 @@ def _rotate_by(q, rx, ry, rz):
     q[0], q[1], q[2], q[3] = w / n, x / n, y / n, z / n
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _propagate(q, b, P, w_gyro, rate_noise, dt, sigma_v, sigma_u, phi, qd, m1, m2):
     wx, wy, wz = w_gyro[0] - b[0], w_gyro[1] - b[1], w_gyro[2] - b[2]
     _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd)
@@ -349,7 +349,7 @@ def _propagate(q, b, P, w_gyro, rate_noise, dt, sigma_v, sigma_u, phi, qd, m1, m
     _predict_model_cov_into(P, phi, qd, m1, m2)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last, rate_noise,
                nis_out, z_out, s_out):
     """One frame of the MEKF: gyro intervals and attitude samples in time order, sequential updates.
@@ -477,7 +477,7 @@ def fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, ac
     return t, n_acc, n_prop
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def quat_advance(q, rotvec):
     """``normalise(q ⊗ exp(rotvec))``: an attitude turned by a body-frame rotation vector.
 
@@ -500,7 +500,7 @@ def quat_advance(q, rotvec):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def innovation_window(nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot):
     """Store one delivery's innovation sums in a ring and return the window's and the delivery's statistics.
 
@@ -586,7 +586,7 @@ def innovation_window(nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot):
     return nis_total, n, mean_chi2, delivery_chi2, max_nis, count
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def timing_statistic(u, z, s, r_cov, loose_ratio):
     """The timing test of a delivery against the gyro-propagated prediction, along the body rate.
 
@@ -638,7 +638,7 @@ def timing_statistic(u, z, s, r_cov, loose_ratio):
     return c * c / (p + v), p > loose_ratio * r_min
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def saturated_rate_noise(omega, omega_prev, limit_rad_s, check_repeat, noise_rad2_s, out):
     """Extra process noise of the gyro axes whose reading is saturated.
 
@@ -678,7 +678,7 @@ def saturated_rate_noise(omega, omega_prev, limit_rad_s, check_repeat, noise_rad
     return last
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def gyro_jump_statistic(y, m, den, first, sigma2, delta_out):
     """Generalised likelihood ratio test for a step in a window of gyro readings (a bias that jumped).
 

@@ -325,7 +325,7 @@ def interpolate_rows(t, q, tq):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def interval_rates_rows(t, q):
     """Mean body rate (n - 1, 3), rad/s, over each interval of an attitude history ``t`` (n,) s, ``q`` (n, 4)
     non-zero: the rotation vector of ``conj(q[k]) ⊗ q[k + 1]`` (:func:`relative_rotvec_rows`) over

@@ -338,7 +338,7 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
     return select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, n_path_samples, vectors_by_z, z_sorted,
                 z_order, vectors, hip, vmag, bv, half_diag_rad, focal_length_px, focal_length_mm, k1_per_mm2,
                 pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px, cos_rot, sin_rot):

@@ -271,10 +271,13 @@ def instant_deleted_chi2(q_ref, q_sol, cov_sol, tau_s, degree):
             v *= u
     a_inv = np.linalg.inv(x.T @ x)
     beta = a_inv @ (x.T @ theta)
-    resid = theta - x @ beta
+    resid = x @ beta
     c_sum = np.zeros((3, 3))
-    for k in range(n):
-        c_sum += cov_sol[k]
+    for k in range(n):  # element loops, not array expressions (each compiles a ufunc kernel)
+        for i in range(3):
+            resid[k, i] = theta[k, i] - resid[k, i]
+            for j in range(3):
+                c_sum[i, j] += cov_sol[k, i, j]
     out = np.empty(n)
     s = np.empty((3, 3))
     for k in range(n):
@@ -292,7 +295,7 @@ def instant_deleted_chi2(q_ref, q_sol, cov_sol, tau_s, degree):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def _argmax_first(v):
     """``numpy.argmax`` of a non-empty 1-D array: the first NaN, else the first largest value."""
     worst = 0
@@ -369,7 +372,7 @@ def gather_instants(idx, t, q_pred, q_sol, cov):
     return ts, qp, qs, cs
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def smooth_instants(q_pred, q_sol, cov_sol, tau_s, gate):
     """The instants of a tracked frame that lie on a smooth motion (the tracker's smoothness test).
 
@@ -419,7 +422,7 @@ def smooth_instants(q_pred, q_sol, cov_sol, tau_s, gate):
     return idx[:m].copy()
 
 
-@njit(cache=True)
+@njit(cache=True, no_cfunc_wrapper=True)
 def accept_instants(sel, t_exp, q_pred, q_all, cov_all, rms_arcsec, n_stars, gate, residual_expected_arcsec, scale):
     """The samples of a tracked frame that passed the lock tests: the smoothness test, then the covariance scaling.
 

@@ -23,8 +23,10 @@ steps/s above, since every run makes its own env), against a later reset. Then, 
 ways: gymnasium's ``AsyncVectorEnv`` with N worker processes, 120° slews back to back (autoreset), timed around
 ``vec.step`` only (autoreset steps not counted); and N processes each running whole episodes as the default row does
 (after a warm-up episode of their own), at the same time, their steps/s summed. Each as aggregate env steps/s and its
-ratio to the one-process default row of the same run. This is throughput, not the speed of one env: the issue's
-per-env target is the default row.
+ratio to the one-process default row of the same run; the vector env twice, alternating, with every info key and
+with ``info_keys`` set to the four keys an RL run reads (``LEAN_INFO_KEYS``), each with the main process's CPU time
+per vector step (the workers' results unpickled and their infos merged into arrays). This is throughput, not the
+speed of one env: the issue's per-env target is the default row.
 With ``--budget``, where a step's time goes, per configuration: the physics (``Spacecraft.step_recording``), the
 compiled kernels (every numba function the package's modules hold under a public name, timed around each call from
 Python, dispatch included; calls made inside compiled code are part of their caller's time) and the rest (Python,
@@ -66,6 +68,8 @@ CONFIGS = {
     "two heads": {"n_heads": 2},
     "3CMOS": {"camera": "paper004_3cmos"},
 }
+# what an RL run reads from info: the reward terms and the settle timer (the vector-env rows' lean variant)
+LEAN_INFO_KEYS = ("reward_pointing", "reward_effort", "reward_settle", "settled_s")
 TARGETS = {
     "default (centroid, multi-exposure)": ">= 2000 steps/s, <= 2x floor",
     "pixel fidelity": ">= 500 steps/s",
@@ -221,8 +225,9 @@ N_BANDS = ("1", "2-14", ">= 15")
 """Bands of exposures per frame of :func:`step_budget`'s split (at rest, accelerating, near the top rate)."""
 
 
-def run_vector(kwargs: dict, n_envs: int, n_vec_steps: int, angle_deg: float, max_episode_s: float) -> float:
-    """Aggregate env steps/s of ``n_envs`` default envs in gymnasium's ``AsyncVectorEnv`` (one process each).
+def run_vector(kwargs: dict, n_envs: int, n_vec_steps: int, angle_deg: float, max_episode_s: float):
+    """Aggregate env steps/s of ``n_envs`` envs in gymnasium's ``AsyncVectorEnv`` (one process each), and the main
+    process's CPU time per vector step, µs (unpickling and merging the workers' results: less noisy than wall time).
 
     Every episode is an ``angle_deg`` slew (``slew_angle_deg_range`` fixed), the eigenaxis policy acts per env outside
     the clock, and the steps that only autoreset a finished env are not counted.
@@ -239,17 +244,18 @@ def run_vector(kwargs: dict, n_envs: int, n_vec_steps: int, angle_deg: float, ma
     try:
         obs, _ = vec.reset(seed=list(range(n_envs)))
         done = np.zeros(n_envs, dtype=bool)
-        steps, wall = 0, 0.0
+        steps, wall, cpu = 0, 0.0, 0.0
         for _ in range(n_vec_steps):
             act = np.stack([pol.act(o) for o in gym.vector.utils.iterate(vec.observation_space, obs)])
-            t0 = clock()
+            t0, c0 = clock(), time.process_time()
             obs, _, te, tr, _ = vec.step(act)
             wall += clock() - t0
+            cpu += time.process_time() - c0
             steps += int(np.count_nonzero(~done))  # an env that ended last step only resets in this one
             done = te | tr
     finally:
         vec.close()
-    return steps / wall
+    return steps / wall, cpu / n_vec_steps * 1e6
 
 
 def episodes_in_process(job: tuple) -> float:
@@ -318,20 +324,30 @@ def main():
         n_vec = args.vector_envs
         one_env = float(np.median([r[0] for r in results["default (centroid, multi-exposure)"]]))
         run_vector({}, n_vec, 5, args.angle_deg, 2.0)  # warm-up: worker start, imports, kernels from the cache
-        vec_sps = [run_vector({}, n_vec, 60 if args.quick else 300, args.angle_deg, max_s) for _ in range(reps)]
-        med = float(np.median(vec_sps))
+        n_vs = 60 if args.quick else 300
+        vec_runs = {"every info key": [], f"info_keys = {len(LEAN_INFO_KEYS)} reward keys": []}
+        for _ in range(reps):  # the two kinds alternate, so that both see the same moments of the machine
+            vec_runs["every info key"].append(run_vector({}, n_vec, n_vs, args.angle_deg, max_s))
+            vec_runs[f"info_keys = {len(LEAN_INFO_KEYS)} reward keys"].append(
+                run_vector({"info_keys": LEAN_INFO_KEYS}, n_vec, n_vs, args.angle_deg, max_s))
         print()
         print(f"Throughput on several cores: the default env in gymnasium's AsyncVectorEnv, {n_vec} worker processes, "
-              f"{args.angle_deg:.0f}° slews back to back, median of {reps} runs of {60 if args.quick else 300} vector "
-              f"steps; and {n_vec} processes each running {n_ep} whole episodes at once, median of {reps} runs")
+              f"{args.angle_deg:.0f}° slews back to back, median of {reps} runs of {n_vs} vector steps, with every "
+              f"info key and with info_keys={LEAN_INFO_KEYS} (runs alternating), with the main process's CPU per "
+              f"vector step (unpickling and merging the infos); and {n_vec} processes each running {n_ep} whole "
+              f"episodes at once, median of {reps} runs")
         proc_sps = [run_processes({}, n_vec, n_ep, args.angle_deg, max_s) for _ in range(reps)]
         med_p = float(np.median(proc_sps))
-        print("| configuration | aggregate env steps/s (median) | min | max | per env | vs one env (default row) |")
-        print("|---|---|---|---|---|---|")
-        print(f"| default, AsyncVectorEnv x {n_vec} | {med:.0f} | {min(vec_sps):.0f} | {max(vec_sps):.0f} | "
-              f"{med / n_vec:.0f} | {med / one_env:.2f} |")
+        print("| configuration | aggregate env steps/s (median) | min | max | per env | vs one env (default row) "
+              "| main process CPU per vector step, µs |")
+        print("|---|---|---|---|---|---|---|")
+        for label, runs in vec_runs.items():
+            sps = [r[0] for r in runs]
+            med = float(np.median(sps))
+            print(f"| default, AsyncVectorEnv x {n_vec}, {label} | {med:.0f} | {min(sps):.0f} | {max(sps):.0f} | "
+                  f"{med / n_vec:.0f} | {med / one_env:.2f} | {np.median([r[1] for r in runs]):.0f} |")
         print(f"| default, {n_vec} processes of whole episodes | {med_p:.0f} | {min(proc_sps):.0f} | "
-              f"{max(proc_sps):.0f} | {med_p / n_vec:.0f} | {med_p / one_env:.2f} |")
+              f"{max(proc_sps):.0f} | {med_p / n_vec:.0f} | {med_p / one_env:.2f} | — |")
     if args.budget:
         budgets = {name: [step_budget(kw, n_ep, args.angle_deg, max_s) for _ in range(reps)]
                    for name, kw in CONFIGS.items()}

@@ -8,6 +8,7 @@ import numpy as np
 import gymnasium as gym
 from gymnasium import spaces
 
+from envs import WALL_CLOCK_INFO_KEYS
 from envs.avionics import Avionics, AvionicsConfig, TRACKER_MODES
 from envs.faults import Fault, FaultSchedule, random_fault_schedule
 from envs.spacecraft import Spacecraft
@@ -15,7 +16,18 @@ from startracker.onboard import ProcessorModel, UnitConfig
 from startracker.rotations import quat_from_rotvec, quat_integrate, quat_multiply, quat_normalize, quat_random
 from startracker.kernels import rotations as rk
 
-__all__ = ["AgileSlewEnv"]
+__all__ = ["AgileSlewEnv", "INFO_KEYS"]
+
+# every key of the raw environment's info, in order (the wrapper adds envs.WALL_CLOCK_INFO_KEYS)
+INFO_KEYS = (
+    "time_s", "q_true", "q_est", "omega_est_body", "estimate_valid", "q_target", "omega_true_body",
+    "attitude_error_arcsec", "pointing_error_deg", "update_rate_hz", "update_rate_hz_per_head", "matching_latency_ms",
+    "matching_latency_ms_per_head", "tracker_mode", "n_stars", "exposures_per_frame", "n_attitude_samples",
+    "lost_lock_events", "faults_active", "n_wrong_samples", "filter_restarts", "n_wrong_samples_total",
+    "n_confidently_wrong_samples", "n_confidently_wrong_samples_total", "estimate_wrong", "estimate_confidently_wrong",
+    "n_wrong_estimates_total", "n_confidently_wrong_estimates_total", "reacquisition_times_s", "attitude_sigma_arcsec",
+    "ekf_nees", "reward_pointing", "reward_effort", "reward_settle", "settled_s",
+)
 
 
 class AgileSlewEnv(gym.Env):
@@ -118,6 +130,7 @@ class AgileSlewEnv(gym.Env):
     | ``faults`` | () | fault schedule: ``envs.faults.Fault`` objects or dicts ``{kind, t_start_s, duration_s, severity}`` |
     | ``random_faults_per_min`` | 0 | random faults (Poisson) drawn at each reset, for soak runs |
     | ``processor`` | ``ProcessorModel()`` | the tracker's processing budget (``startracker.processor.ProcessorModel``, a dict of its fields, or a fixed latency in ms): each frame's samples reach the filter that long after the frame ends; ``info["matching_latency_ms"]`` is this modelled latency |
+    | ``info_keys`` | None (every key) | the ``info`` keys to return (``envs.agile_slew.INFO_KEYS``, the wrapper's ``envs.WALL_CLOCK_INFO_KEYS``), e.g. ``("reward_pointing", "settled_s")``: a vector env pickles and merges every key of every step, so an RL run that reads a few keys steps faster with just those; the episode is the same |
     | ``render_mode`` | None | ``"rgb_array"``: the last star image with detections marked |
 
     ## Version History
@@ -126,9 +139,11 @@ class AgileSlewEnv(gym.Env):
     * v0, sensor revision (task unchanged: observation, action, reward, episode ends, info keys): the paper000
       camera takes paper 000's N rule (21 exposures, 210 Hz at 20°/s); near-overlapping spots join in both
       fidelities; the tracker drops joined spots and instants off a smooth motion (docs/environment.md).
+    * v0, ``info_keys`` argument (default: every key, as before).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    available_info_keys = INFO_KEYS  # what ``info_keys`` may name, with envs.WALL_CLOCK_INFO_KEYS
 
     def __init__(
         self,
@@ -163,6 +178,7 @@ class AgileSlewEnv(gym.Env):
         faults=None,
         random_faults_per_min: float = 0.0,
         processor=None,
+        info_keys=None,
         render_mode: str | None = None,
     ):
         if task not in ("slew", "hold"):
@@ -198,6 +214,7 @@ class AgileSlewEnv(gym.Env):
         if not isinstance(processor, ProcessorModel):
             raise TypeError(f"processor must be a ProcessorModel, a dict of its fields, a latency in ms or None, "
                             f"got {type(processor).__name__}")
+        self.info_keys = self.check_info_keys(info_keys)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         if disturbance_torque_Nm is None:
@@ -267,6 +284,36 @@ class AgileSlewEnv(gym.Env):
         self._disturbance_world = np.zeros(3)
         self._settled_s = 0.0
         self._last_info: dict = {}
+
+    @classmethod
+    def check_info_keys(cls, info_keys) -> tuple[str, ...] | None:
+        """``info_keys`` checked: None (every key), or a tuple of distinct known key names in the caller's order.
+
+        Raises ``TypeError`` for a string or a non-string entry, ``ValueError`` naming any unknown key.
+        """
+        if info_keys is None:
+            return None
+        if isinstance(info_keys, (str, bytes)):
+            raise TypeError(f"info_keys must be a sequence of key names or None, not a single string: {info_keys!r}")
+        try:
+            keys = tuple(info_keys)
+        except TypeError:
+            raise TypeError(f"info_keys must be a sequence of key names or None, got {type(info_keys).__name__}") from None
+        known = cls.available_info_keys + WALL_CLOCK_INFO_KEYS
+        for k in keys:
+            if not isinstance(k, str):
+                raise TypeError(f"info_keys must hold strings, got {k!r}")
+        unknown = [k for k in keys if k not in known]
+        if unknown:
+            raise ValueError(f"info_keys names unknown keys {unknown}; the keys are {list(known)}")
+        return tuple(dict.fromkeys(keys))
+
+    def select_info(self, info: dict) -> dict:
+        """The entries of ``info`` that ``info_keys`` asks for (all when it is None), in its order."""
+        keys = self.info_keys
+        if keys is None:
+            return info
+        return {k: info[k] for k in keys if k in info}
 
     # ------------------------------------------------------------------ design (not state) for controllers
     def controller_spec(self) -> dict:
@@ -342,7 +389,7 @@ class AgileSlewEnv(gym.Env):
         self.avionics.reset(rng, FaultSchedule(faults), first_frame_truth=(t_pre, q_pre))
         obs = self._observation()
         info = self._info(reward_terms=(0.0, 0.0, 0.0))
-        return obs, info
+        return obs, self.select_info(info)
 
     def step(self, action):
         a = np.asarray(action, dtype=np.float64)
@@ -381,8 +428,8 @@ class AgileSlewEnv(gym.Env):
         truncated = self.spacecraft.time_s >= self.max_episode_s - 1e-9
         est = self.avionics.estimate()  # one fresh estimate for the observation and the info
         obs = self._observation(est)
-        return obs, float(reward), bool(terminated), bool(truncated), self._info((r_point, r_effort, r_settle), est,
-                                                                                   q_true, err)
+        info = self._info((r_point, r_effort, r_settle), est, q_true, err)
+        return obs, float(reward), bool(terminated), bool(truncated), self.select_info(info)
 
     def render(self):
         if self.render_mode != "rgb_array":

@@ -8,7 +8,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from envs.agile_slew import AgileSlewEnv
+from envs.agile_slew import INFO_KEYS, AgileSlewEnv
 from envs.avionics import Estimate, TRACKER_MODES
 from envs.faults import Fault
 from startracker.kernels import rotations as rk
@@ -210,9 +210,12 @@ class AgileSlewV1Env(AgileSlewEnv):
 
     * v1: body-torque action, scaled observation with the settle timer, log-scaled reward with settle bonus,
       divergence termination, episode length from the slew range, ideal sensor. Later, opt-in (the default
-      behaviour unchanged): ``action_curve="cubic"``, ``fine_error_deg``, and a (low, high) range of ideal-sensor
-      noise.
+      behaviour unchanged): ``action_curve="cubic"``, ``fine_error_deg``, a (low, high) range of ideal-sensor
+      noise, and v0's ``info_keys`` (which may also name the keys below).
     """
+
+    # v0's info keys and the ones this task adds (step_info)
+    available_info_keys = INFO_KEYS + ("reward_rate", "reward_diverge", "settled", "diverged", "sensor")
 
     def __init__(
         self,
@@ -447,4 +450,4 @@ class AgileSlewV1Env(AgileSlewEnv):
         if self.sensor == "ideal":
             info.update(tracker_mode="track", update_rate_hz=1.0 / self.control_period_s, matching_latency_ms=0.0,
                         n_attitude_samples=1)
-        return info
+        return self.select_info(info)

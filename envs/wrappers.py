@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import gymnasium as gym
 
+from envs import WALL_CLOCK_INFO_KEYS
+
 __all__ = ["WallClockLatency", "WALL_CLOCK_INFO_KEY"]
 
 WALL_CLOCK_INFO_KEY = "matching_wall_clock_ms"
@@ -36,13 +38,19 @@ class WallClockLatency(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if not hasattr(env.unwrapped, "wall_clock_info"):
             raise TypeError("WallClockLatency wraps a startracker environment (one with wall_clock_info)")
         self._base = env.unwrapped  # found once: the wrapper chain is fixed
+        wanted = getattr(self._base, "info_keys", None)  # the env's info_keys: only the wall-clock keys it names
+        self._keys = WALL_CLOCK_INFO_KEYS if wanted is None else tuple(k for k in wanted if k in WALL_CLOCK_INFO_KEYS)
+
+    def _add_wall_clock(self, info: dict) -> dict:
+        if self._keys:
+            wall = self._base.wall_clock_info
+            info.update((k, wall[k]) for k in self._keys)
+        return info
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
-        info.update(self._base.wall_clock_info)
-        return obs, info
+        return obs, self._add_wall_clock(info)
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
-        info.update(self._base.wall_clock_info)
-        return obs, reward, terminated, truncated, info
+        return obs, reward, terminated, truncated, self._add_wall_clock(info)

@@ -82,6 +82,49 @@ def test_env_pickles_and_continues_identically():
     assert np.array_equal(o1, o2)
 
 
+@pytest.mark.parametrize("env_id", ["startracker/AgileSlew-v0", "startracker/AgileSlew-v1"])
+def test_info_keys_returns_only_the_named_keys_of_the_same_episode(env_id):
+    wanted = ("settled_s", "reward_pointing", "matching_wall_clock_ms", "q_est")
+    full, lean = gym.make(env_id), gym.make(env_id, info_keys=wanted)
+    (o_f, i_f), (o_l, i_l) = full.reset(seed=3), lean.reset(seed=3)
+    rng = np.random.default_rng(3)
+    for step in range(12):
+        assert set(i_l) == set(wanted)
+        assert np.array_equal(o_f, o_l)
+        for k in ("settled_s", "reward_pointing", "q_est"):  # the wall clock differs from run to run
+            assert np.array_equal(i_f[k], i_l[k])
+        a = rng.uniform(-1, 1, full.action_space.shape).astype(np.float32)
+        o_f, r_f, *_, i_f = full.step(a)
+        o_l, r_l, *_, i_l = lean.step(a)
+        assert r_f == r_l
+
+
+def test_full_info_holds_exactly_the_listed_keys():
+    for env_id in ENV_IDS:
+        env = gym.make(env_id)
+        _, info = env.reset(seed=0)
+        listed = env.unwrapped.available_info_keys + envs.WALL_CLOCK_INFO_KEYS
+        assert set(info) == set(listed) and len(listed) == len(set(listed))
+        assert set(env.step(env.action_space.sample())[4]) == set(listed)
+        assert set(gym.make(env_id, info_keys=()).reset(seed=0)[1]) == set()
+
+
+@pytest.mark.parametrize("bad,error", [("settled_s", TypeError), (["settled_s", 3], TypeError), (7, TypeError),
+                                       (["settled_s", "no_such_key"], ValueError)])
+def test_bad_info_keys_are_refused_by_name(bad, error):
+    with pytest.raises(error, match="info_keys"):
+        gym.make("startracker/AgileSlew-v0", info_keys=bad)
+
+
+def test_async_vector_env_with_few_info_keys():
+    keys = ("reward_pointing", "settled_s")
+    vec = gym.vector.AsyncVectorEnv([lambda: gym.make("startracker/AgileSlew-v0", info_keys=keys)] * 2)
+    vec.reset(seed=[0, 1])
+    _, _, _, _, info = vec.step(vec.action_space.sample())
+    assert set(info) == set(keys) | {"_" + k for k in keys} and info["reward_pointing"].shape == (2,)
+    vec.close()
+
+
 def test_async_vector_env_runs():
     vec = gym.vector.AsyncVectorEnv([lambda: gym.make("startracker/AgileSlew-v0")] * 2)
     obs, info = vec.reset(seed=[0, 1])

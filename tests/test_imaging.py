@@ -583,3 +583,28 @@ def test_split_pixel_index_is_divmod():
         px = np.concatenate([np.arange(min(n_px, 20000)), np.arange(n_rows) * n_cols,
                              np.arange(1, n_rows + 1) * n_cols - 1, rng.integers(0, n_px, 20000)]).astype(np.int64)
         np.testing.assert_array_equal(split_all(px, n_cols), np.stack(np.divmod(px, n_cols), 1))
+
+
+@pytest.mark.parametrize("n_samples", [3, 5, 12])
+def test_frame_star_spots_equal_the_numpy_formulation(n_samples):
+    from startracker.kernels.imaging import frame_star_spots
+
+    rng = np.random.default_rng(n_samples)
+    n, m = 4, 9
+    xy_path = rng.uniform(-40.0, 140.0, (n, n_samples, m, 2))  # some paths off the 100 x 80 window, some across it
+    pe = rng.uniform(1.0, 100.0, m)
+    pe[3] = 0.0  # a star without light keeps its source row but no path
+    gain, x_lo, x_hi, y_lo, y_hi = 2.5, -3.5, 102.5, -3.5, 82.5
+    star, expo, xy, exp_e, paths, total, source = frame_star_spots(xy_path, pe, gain, x_lo, x_hi, y_lo, y_hi)
+    # the source table, exposure-major, and the trapezoid mean as Scene.xy_mean computes it
+    assert np.array_equal(star, np.tile(np.arange(m), n)) and np.array_equal(expo, np.repeat(np.arange(n), m))
+    mean = (xy_path[:, 1:-1].sum(axis=1) + 0.5 * (xy_path[:, 0] + xy_path[:, -1])) / (n_samples - 1)
+    assert np.array_equal(xy, mean.reshape(-1, 2))
+    assert np.array_equal(exp_e, np.tile(pe * gain, n))
+    # kept: the path's bounding box meets the window and the star gives light
+    p = np.moveaxis(xy_path, 1, 2).reshape(n * m, n_samples, 2)
+    lo, hi = p.min(axis=1), p.max(axis=1)
+    inside = (hi[:, 0] >= x_lo) & (lo[:, 0] <= x_hi) & (hi[:, 1] >= y_lo) & (lo[:, 1] <= y_hi) & (np.tile(pe, n) > 0)
+    assert 0 < inside.sum() < n * m
+    assert np.array_equal(source, np.flatnonzero(inside))
+    assert np.array_equal(paths, p[inside]) and np.array_equal(total, np.tile(pe, n)[inside])

@@ -13,7 +13,8 @@ from scipy.special import ndtr
 
 from startracker.imaging.background import COSMIC_SIGMA_PX, BackgroundField, FalseObjects
 from startracker.imaging.detector import SensorModel
-from startracker.kernels.imaging import render_spot_windows, shift_intensified_spots, spots_from_paths
+from startracker.kernels.imaging import (frame_star_spots, render_spot_windows, shift_intensified_spots,
+                                         spots_from_paths)
 from startracker.scene import Scene
 
 __all__ = [
@@ -112,14 +113,18 @@ def frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
     margin = 5.0 * sigma
 
     pe_star = model.star_pe(scene.vmag, scene.bv, tau)  # (M,)
+    # the stars' sources and their paths on the detector in one compiled pass (the bulk of a frame's sources)
+    star, expo, xy, exp_star, star_paths, star_total, star_source = frame_star_spots(
+        np.ascontiguousarray(scene.xy_path, dtype=np.float64), np.ascontiguousarray(pe_star, dtype=np.float64),
+        float(g), -0.5 - margin, w - 0.5 + margin, -0.5 - margin, h - 0.5 + margin)
     kinds = [np.full(n * m, KIND_STAR)]
-    stars = [np.tile(np.arange(m), n)]
-    expos = [np.repeat(np.arange(n), m)]
-    xys = [scene.xy_mean.reshape(-1, 2)]
-    exp_e = [np.tile(pe_star * g, n)]
-    optical_paths = [np.moveaxis(scene.xy_path, 1, 2).reshape(n * m, scene.xy_path.shape[1], 2)]  # (N*M, S, 2)
-    optical_total = [np.tile(pe_star, n)]
-    optical_source = [np.arange(n * m)]
+    stars = [star]
+    expos = [expo]
+    xys = [xy]
+    exp_e = [exp_star]
+    optical_paths = [star_paths]
+    optical_total = [star_total]
+    optical_source = [star_source]
     q = n * m
 
     nd = len(fo.debris_vmag)
@@ -152,11 +157,16 @@ def frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
         cosmic = _paths_to_spots(cpaths, fo.cosmic_e, np.full(nc, COSMIC_SIGMA_PX), q + np.arange(nc), True)
         q += nc
 
-    paths = np.concatenate(optical_paths) if optical_paths else np.zeros((0, 3, 2))
-    total = np.concatenate(optical_total)
-    source = np.concatenate(optical_source)
-    keep = _on_detector(paths, margin, w, h) & (total > 0)
-    optical = _paths_to_spots(paths[keep], total[keep], np.full(int(keep.sum()), sigma), source[keep], False)
+    if len(optical_paths) > 1:  # debris: their paths kept as the stars' are, after them
+        deb_paths, deb_total, deb_source = optical_paths.pop(), optical_total.pop(), optical_source.pop()
+        keep = _on_detector(deb_paths, margin, w, h) & (deb_total > 0)
+        optical_paths.append(deb_paths[keep])
+        optical_total.append(deb_total[keep])
+        optical_source.append(deb_source[keep])
+    paths = np.concatenate(optical_paths) if len(optical_paths) > 1 else optical_paths[0]
+    total = np.concatenate(optical_total) if len(optical_total) > 1 else optical_total[0]
+    source = np.concatenate(optical_source) if len(optical_source) > 1 else optical_source[0]
+    optical = _paths_to_spots(paths, total, np.full(len(total), sigma), source, False)
     table = dict(
         kind=np.concatenate(kinds),
         star=np.concatenate(stars),

@@ -15,11 +15,19 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from pathlib import Path
 
 import numba
 
-__all__ = ["KERNEL_SOURCES_DIGEST", "kernel_cache_dir"]
+__all__ = ["KERNEL_SOURCES_DIGEST", "KernelCompileWarning", "kernel_cache_dir", "kernel_cache_is_empty"]
+
+
+class KernelCompileWarning(UserWarning):
+    """Issued once, at import, when no compiled kernel is cached yet: this process compiles them on first use.
+
+    Silence it with ``warnings.simplefilter("ignore", KernelCompileWarning)`` before importing the package.
+    """
 
 
 def _sources_digest() -> str:
@@ -62,6 +70,18 @@ def kernel_cache_dir() -> Path:
     return base / "startracker-gym" / f"numba-{KERNEL_SOURCES_DIGEST}"
 
 
+def kernel_cache_is_empty(folder: Path | None = None) -> bool:
+    """True when ``folder`` (default :func:`kernel_cache_dir`) holds no compiled kernel (numba's ``*.nbi`` index
+    files): a fresh install, or the first run after an edit of any kernel source."""
+    folder = kernel_cache_dir() if folder is None else Path(folder)
+    return not any(folder.rglob("*.nbi")) if folder.is_dir() else True
+
+
 # Set before any kernel module is imported (they import this package first), so every @njit(cache=True) below
 # writes to and reads from the digest-keyed folder.
 numba.config.CACHE_DIR = str(kernel_cache_dir())
+# A first use compiles for about a minute with no output of its own: say so once, where it starts.
+if not numba.config.DISABLE_JIT and kernel_cache_is_empty():
+    warnings.warn(f"startracker-gym: no compiled kernels cached in {numba.config.CACHE_DIR} yet; this process compiles "
+                  "them as they are first used (about a minute of CPU in all, once; later processes load them from "
+                  "the cache in seconds)", KernelCompileWarning, stacklevel=2)

@@ -27,6 +27,7 @@ __all__ = [
     "place_false_pixels",
     "lookup_pixels",
     "spots_from_paths",
+    "frame_star_spots",
     "split_pixel_index",
 ]
 
@@ -801,3 +802,85 @@ def spots_from_paths(paths, total, sigma_px):
                 sub_xy[p, k, 1] = knots[e, j, 1] + (knots[e, j + 1, 1] - knots[e, j, 1]) * f
                 sub_w[p, k] = w
     return sub_xy, sub_w, sigma, path, along, length
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def frame_star_spots(xy_path, pe_star, gain, x_lo, x_hi, y_lo, y_hi):
+    """The stars' part of a frame's source table and the star paths that can light the detector.
+
+    Sources are exposure-major: row ``i M + m`` is scene star m in exposure i. A path is kept when its
+    bounding box over the samples reaches the window ``[x_lo, x_hi] × [y_lo, y_hi]`` (the detector widened by
+    a margin, px) and its star gives light.
+
+    Parameters
+    ----------
+    xy_path : ndarray, shape (N, S, M, 2)
+        Star positions (column, row) at S >= 3 instants over each exposure, px.
+    pe_star : ndarray, shape (M,)
+        Expected photoelectrons of each star in one exposure.
+    gain : float
+        Charge per photoelectron (the intensifier gain; 1 without one).
+    x_lo, x_hi, y_lo, y_hi : float
+        The window, px.
+
+    Returns
+    -------
+    star, exposure : ndarray of int64, shape (N M,)
+        Scene star and exposure of each source.
+    xy : ndarray, shape (N M, 2)
+        Time-averaged position over the exposure (trapezoid rule over the samples, summed in sample order as
+        ``Scene.xy_mean``), px.
+    expected_e : ndarray, shape (N M,)
+        ``pe_star · gain``, e⁻.
+    paths : ndarray, shape (E, S, 2)
+        The kept paths, in source order, px.
+    total : ndarray, shape (E,)
+        Their photoelectrons.
+    source : ndarray of int64, shape (E,)
+        Their source rows.
+    """
+    n, s, m, _ = xy_path.shape
+    q = n * m
+    star = np.empty(q, dtype=np.int64)
+    expo = np.empty(q, dtype=np.int64)
+    xy = np.empty((q, 2))
+    exp_e = np.empty(q)
+    keep = np.empty(q, dtype=np.bool_)
+    n_keep = 0
+    for i in range(n):
+        for j in range(m):
+            r = i * m + j
+            star[r] = j
+            expo[r] = i
+            exp_e[r] = pe_star[j] * gain
+            for c in range(2):
+                acc = xy_path[i, 1, j, c]
+                for k in range(2, s - 1):
+                    acc += xy_path[i, k, j, c]
+                xy[r, c] = (acc + 0.5 * (xy_path[i, 0, j, c] + xy_path[i, s - 1, j, c])) / (s - 1.0)
+            lo_x = hi_x = xy_path[i, 0, j, 0]
+            lo_y = hi_y = xy_path[i, 0, j, 1]
+            for k in range(1, s):
+                lo_x = min(lo_x, xy_path[i, k, j, 0])
+                hi_x = max(hi_x, xy_path[i, k, j, 0])
+                lo_y = min(lo_y, xy_path[i, k, j, 1])
+                hi_y = max(hi_y, xy_path[i, k, j, 1])
+            ok = hi_x >= x_lo and lo_x <= x_hi and hi_y >= y_lo and lo_y <= y_hi and pe_star[j] > 0
+            keep[r] = ok
+            if ok:
+                n_keep += 1
+    paths = np.empty((n_keep, s, 2))
+    total = np.empty(n_keep)
+    source = np.empty(n_keep, dtype=np.int64)
+    e = 0
+    for r in range(q):
+        if keep[r]:
+            i = r // m
+            j = r - i * m
+            for k in range(s):
+                paths[e, k, 0] = xy_path[i, k, j, 0]
+                paths[e, k, 1] = xy_path[i, k, j, 1]
+            total[e] = pe_star[j]
+            source[e] = r
+            e += 1
+    return star, expo, xy, exp_e, paths, total, source

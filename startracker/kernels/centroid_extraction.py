@@ -175,18 +175,40 @@ def measure_components(labels, n_comp, rows, cols, signal, saturated_px, noise_p
     noise = np.zeros(n_comp)
     peak = np.full(n_comp, -np.inf)
     peak_pixel = np.full(n_comp, -1, dtype=np.int64)
-    for i in range(len(labels)):
+    n = len(labels)
+    i = 0
+    while i < n:
+        # a run of pixels of one component keeps its sums in registers (added in the same order): summing into
+        # the arrays pixel by pixel waits on the previous pixel's store each time
         k = labels[i]
-        s = signal[i]
-        area[k] += 1
-        inten[k] += s
-        sx[k] += s * cols[i]
-        sy[k] += s * rows[i]
-        sat[k] |= saturated_px[i]
-        noise[k] += noise_px[i]
-        if s >= peak[k]:
-            peak[k] = s
-            peak_pixel[k] = i
+        ar = area[k]
+        it = inten[k]
+        x = sx[k]
+        y = sy[k]
+        st = sat[k]
+        ns = noise[k]
+        pk = peak[k]
+        pp = peak_pixel[k]
+        while i < n and labels[i] == k:
+            s = signal[i]
+            ar += 1
+            it += s
+            x += s * cols[i]
+            y += s * rows[i]
+            st |= saturated_px[i]
+            ns += noise_px[i]
+            take = s >= pk
+            pk = s if take else pk
+            pp = i if take else pp
+            i += 1
+        area[k] = ar
+        inten[k] = it
+        sx[k] = x
+        sy[k] = y
+        sat[k] = st
+        noise[k] = ns
+        peak[k] = pk
+        peak_pixel[k] = pp
     for k in range(n_comp):
         d = inten[k] if inten[k] > 0 else 1.0
         sx[k] /= d
@@ -363,26 +385,27 @@ def detect_sparse(lin, dn, background_dn, threshold_dn, saturation_dn, k_sigma, 
         Brightest first.
     """
     n_u = len(lin)
-    pos = np.full(n_u, -1, dtype=np.int64)
+    pos = np.empty(n_u, dtype=np.int64)
+    at = np.empty(n_u, dtype=np.int64)  # compact id of each detected pixel
     a = 0
-    for i in range(n_u):
-        if dn[i] > threshold_dn[i]:
-            pos[i] = a
-            a += 1
+    for i in range(n_u):  # branch-free: whether a pixel is detected is unpredictable
+        hit = dn[i] > threshold_dn[i]
+        pos[i] = a if hit else -1
+        at[a] = i
+        a += hit
     above = np.empty(a, dtype=np.int64)
     rows = np.empty(a)
     cols = np.empty(a)
     signal = np.empty(a)
     sat_px = np.empty(a, dtype=np.bool_)
     noise_px = np.empty(a)
-    for i in range(n_u):
-        j = pos[i]
-        if j < 0:
-            continue
+    inv_cols = 1.0 / n_cols
+    for j in range(a):
+        i = at[j]
         above[j] = lin[i]
-        r = lin[i] // n_cols
+        r, c = split_pixel_index(lin[i], n_cols, inv_cols)
         rows[j] = r
-        cols[j] = lin[i] - r * n_cols
+        cols[j] = c
         signal[j] = dn[i] - background_dn[i]
         sat_px[j] = dn[i] >= saturation_dn
         noise_px[j] = (threshold_dn[i] - background_dn[i]) / k_sigma

@@ -335,7 +335,7 @@ def shift_intensified_spots(sub_xy, along, length_px, n_pe, charge_e, z, excess_
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _add_3x3(centres, n_cols, n_rows, src0, centre_e, lin, lin0, src, exp_e, n):
+def _add_3x3(centres, n_cols, n_rows, src0, centre_e, lin, src, exp_e, n):
     for i in range(len(centres)):
         r0 = centres[i] // n_cols
         c0 = centres[i] - r0 * n_cols
@@ -347,7 +347,7 @@ def _add_3x3(centres, n_cols, n_rows, src0, centre_e, lin, lin0, src, exp_e, n):
                 c = c0 + dc
                 if c < 0 or c >= n_cols:
                     continue
-                lin[n - lin0] = r * n_cols + c
+                lin[n] = r * n_cols + c
                 src[n] = src0 + i
                 exp_e[n] = centre_e[i] if dr == 0 and dc == 0 else 0.0
                 n += 1
@@ -406,73 +406,37 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
     """
     n1 = len(opt_lin)
     n2 = len(dir_lin)
-    n12 = n1 + n2
-    cap = n12 + 9 * (len(hot_lin) + len(false_lin))
-    lin3 = np.empty(cap - n12, dtype=np.int64)  # the 3×3 entries' pixels (the windows' are read in place)
+    cap = n1 + n2 + 9 * (len(hot_lin) + len(false_lin))
+    lin = np.empty(cap, dtype=np.int64)
     src = np.empty(cap, dtype=np.int64)
     exp_e = np.empty(cap)
     for i in range(n1):
+        lin[i] = opt_lin[i]
         src[i] = opt_src[i]
         exp_e[i] = opt_val[i] * opt_e_per_unit
     for i in range(n2):
+        lin[n1 + i] = dir_lin[i]
         src[n1 + i] = dir_src[i]
         exp_e[n1 + i] = dir_val[i]
-    n_base = _add_3x3(hot_lin, n_cols, n_rows, hot_src0, hot_e, lin3, n12, src, exp_e, n12)
-    n = _add_3x3(false_lin, n_cols, n_rows, false_src0, np.ones(len(false_lin)), lin3, n12, src, exp_e, n_base)
+    n = _add_3x3(hot_lin, n_cols, n_rows, hot_src0, hot_e, lin, src, exp_e, n1 + n2)
+    n_base = n
+    n = _add_3x3(false_lin, n_cols, n_rows, false_src0, np.ones(len(false_lin)), lin, src, exp_e, n)
+    uniq = np.empty(n, dtype=np.int64)
+    inv = np.empty(n, dtype=np.int64)
     has_prnu = len(prnu) > 0
     # Every entry's PRNU first, in a loop of independent loads: in the deduplication below each load waits on the
     # previous entry's branch, so the cache misses of the window rows in the large index+PRNU array would come one
     # at a time; here they overlap, and the deduplication finds the lines cached (this kernel ~1.7x faster in the
     # pixel env). The deduplication then compacts the values in place (n_u <= e).
     prnu_all = np.empty(n if has_prnu else 0, dtype=np.float32)
-    if has_prnu:
-        for e in range(n1):
-            prnu_all[e] = prnu[opt_lin[e]]
-        for e in range(n2):
-            prnu_all[n1 + e] = prnu[dir_lin[e]]
-        for e in range(n - n12):
-            prnu_all[n12 + e] = prnu[lin3[e]]
-    uniq = np.empty(n, dtype=np.int64)
-    inv = np.empty(n, dtype=np.int64)
-    # the per-pixel sums are formed as the pixels are found (each starts from 0.0, then adds in entry order)
-    spot_u = np.empty(n)
-    direct_u = np.empty(n)
+    for e in range(len(prnu_all)):
+        prnu_all[e] = prnu[lin[e]]
     n_u = 0
-    for e in range(n1):
-        px = opt_lin[e]
-        cand = buf[px]
-        if cand >= 0 and cand < n_u and uniq[cand] == px:
-            inv[e] = cand
-            spot_u[cand] += opt_val[e]
-        else:
-            buf[px] = n_u
-            uniq[n_u] = px
-            if has_prnu:
-                prnu_all[n_u] = prnu_all[e]
-            spot_u[n_u] = 0.0 + opt_val[e]
-            direct_u[n_u] = 0.0
-            inv[e] = n_u
-            n_u += 1
-    for e in range(n1, n12):
-        px = dir_lin[e - n1]
-        cand = buf[px]
-        if cand >= 0 and cand < n_u and uniq[cand] == px:
-            inv[e] = cand
-            direct_u[cand] += dir_val[e - n1]
-        else:
-            buf[px] = n_u
-            uniq[n_u] = px
-            if has_prnu:
-                prnu_all[n_u] = prnu_all[e]
-            spot_u[n_u] = 0.0
-            direct_u[n_u] = 0.0 + dir_val[e - n1]
-            inv[e] = n_u
-            n_u += 1
     n_u_base = 0
-    for e in range(n12, n):
+    for e in range(n):
         if e == n_base:
             n_u_base = n_u
-        px = lin3[e - n12]
+        px = lin[e]
         cand = buf[px]
         if cand >= 0 and cand < n_u and uniq[cand] == px:
             inv[e] = cand
@@ -481,12 +445,16 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
             uniq[n_u] = px
             if has_prnu:
                 prnu_all[n_u] = prnu_all[e]
-            spot_u[n_u] = 0.0
-            direct_u[n_u] = 0.0
             inv[e] = n_u
             n_u += 1
     if n == n_base:
         n_u_base = n_u
+    spot_u = np.zeros(n_u)
+    direct_u = np.zeros(n_u)
+    for e in range(n1):
+        spot_u[inv[e]] += opt_val[e]
+    for e in range(n1, n1 + n2):
+        direct_u[inv[e]] += dir_val[e - n1]
     hot_u = np.empty(len(hot_lin), dtype=np.int64)
     for i in range(len(hot_lin)):
         hot_u[i] = buf[hot_lin[i]]
@@ -498,9 +466,8 @@ def sparse_pixel_set(opt_lin, opt_val, opt_src, opt_e_per_unit, dir_lin, dir_val
     for e in range(n_base, n):
         if false_u[src[e] - false_src0] < 0:
             exp_e[e] = 0.0
-    # views of the length-E arrays: copying U of E values would cost more than the memory it frees
-    return (uniq[:n_u], inv, src[:n], exp_e[:n], spot_u[:n_u], direct_u[:n_u], hot_u, false_u,
-            prnu_all[:n_u] if has_prnu else prnu_all)
+    return (uniq[:n_u].copy(), inv[:n], src[:n], exp_e[:n], spot_u, direct_u, hot_u, false_u,
+            prnu_all[:n_u].copy() if has_prnu else prnu_all)
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

@@ -8,6 +8,10 @@ with N exposures of 1 ms. Paths timed in the same run, per N:
            caller's ``validate=False`` where the installed code has it);
 * full   — ``render_frame`` + ``extract_centroids`` (the peer: the whole frame drawn and searched).
 
+The sparse path is also split: ``render_sparse`` alone (its compiled ``sparse_pixel_set``, windows and noise) and
+``detections_from_sparse`` alone on one rendered frame (its compiled ``detect_sparse``: components, centroids,
+truth owners).
+
 Prints medians over the repeats of the process CPU time (robust on a shared machine) and of the wall-clock time,
 and the ratio full / sparse. Run ``python benchmarks/bench_pixel_path.py`` (20 repeats of the sparse path, 5 of
 the full frame) or ``--quick``. To compare with another checkout, run this file with that checkout first on
@@ -57,8 +61,8 @@ def main(argv=None):
     fast_d = {"validate": False} if "validate" in inspect.signature(detections_from_sparse).parameters else {}
     print(f"startracker from {os.path.dirname(startracker.__file__)}; load average {os.getloadavg()[0]:.1f} on "
           f"{os.cpu_count()} CPUs; model {model.name}")
-    print(f"{'N':>3s} {'spots':>6s} {'sparse CPU ms':>14s} {'wall ms':>8s} {'det':>5s} {'full CPU ms':>12s} "
-          f"{'wall ms':>8s} {'det':>5s} {'full/sparse CPU':>16s}")
+    print(f"{'N':>3s} {'spots':>6s} {'sparse CPU ms':>14s} {'wall ms':>8s} {'render':>7s} {'detect':>7s} {'det':>5s} "
+          f"{'full CPU ms':>12s} {'wall ms':>8s} {'det':>5s} {'full/sparse CPU':>16s}")
     for n in args.exposures:
         *_, scene = build_frame(n_exposures=n)
         rng = np.random.default_rng(0)
@@ -73,9 +77,11 @@ def main(argv=None):
         sparse()  # warm-up: compilation or cache load, fixed pattern, index buffer
         full()
         sc, sw, sd = timed(sparse, reps_sparse)
+        rc, _, sf = timed(lambda: render_sparse(scene, model, rng, 5.0, **fast), reps_sparse)
+        dc, _, _ = timed(lambda: detections_from_sparse(sf, "com", **fast_d), reps_sparse)
         fc, fw, fd = timed(full, reps_full)
-        print(f"{n:3d} {int(scene.visible.sum()):6d} {sc:14.2f} {sw:8.2f} {len(sd):5d} {fc:12.1f} {fw:8.1f} "
-              f"{len(fd):5d} {fc / sc:15.0f}x")
+        print(f"{n:3d} {int(scene.visible.sum()):6d} {sc:14.2f} {sw:8.2f} {rc:7.2f} {dc:7.2f} {len(sd):5d} {fc:12.1f} "
+              f"{fw:8.1f} {len(fd):5d} {fc / sc:15.0f}x")
 
 
 if __name__ == "__main__":

@@ -597,25 +597,20 @@ def _sparse_set(lin_all, n_px):
 
 @pytest.mark.parametrize("seed", range(6))
 def test_sparse_components_match_scipy_label(seed):
-    """Components over a sparse pixel set == scipy.ndimage.label (8-connected) of the same pixels, numbered in
-    order of first appearance; pixels outside the set never connect."""
+    """Components of a set of pixels given in any order == scipy.ndimage.label (8-connected) of the same pixels,
+    numbered in order of first appearance; on small detectors and on one of over 2^22 pixels (three radix
+    passes), with components across row ends (the last column is not next to the next row's first)."""
     from scipy import ndimage
 
     from startracker.kernels.centroid_extraction import sparse_components
 
     rng = np.random.default_rng(seed)
-    n_rows, n_cols = 23, 31
-    mask = rng.random((n_rows, n_cols)) < 0.35
-    above = rng.permutation(np.flatnonzero(mask))
-    others = rng.permutation(np.flatnonzero(~mask))[: int(rng.integers(0, (~mask).sum()))]
-    lin = np.concatenate([above, others])[rng.permutation(len(above) + len(others))]
-    buf = _sparse_set(lin, n_rows * n_cols)
-    pos = np.full(len(lin), -1, dtype=np.int64)
-    where = {p: i for i, p in enumerate(lin)}
-    order = np.array(sorted(above, key=lambda p: where[p]), dtype=np.int64)  # above pixels in set order
-    for j, p in enumerate(order):
-        pos[where[p]] = j
-    labels, n = sparse_components(order, n_rows, n_cols, buf, lin, pos)
+    n_rows, n_cols = [(23, 31), (61, 47), (2053, 2049)][seed % 3]
+    density = 0.35 if n_rows * n_cols < 10_000 else 0.001
+    mask = rng.random((n_rows, n_cols)) < density
+    mask[n_rows // 2: n_rows // 2 + 9] |= rng.random((9, n_cols)) < 0.4  # a dense band, wrapping row ends
+    order = rng.permutation(np.flatnonzero(mask))
+    labels, n = sparse_components(order, n_rows, n_cols)
     ref, n_ref = ndimage.label(mask, structure=np.ones((3, 3)))
     assert n == n_ref
     ref_lab = ref.ravel()[order]

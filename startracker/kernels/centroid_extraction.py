@@ -12,6 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.imaging import split_pixel_index
 from startracker.kernels.kvector import stable_argsort_into
 
 __all__ = [
@@ -36,19 +37,19 @@ def _find(parent, i):
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
-def sparse_components(above_lin, n_rows, n_cols, buf, uniq, pos):
+def sparse_components(above_lin, n_rows, n_cols):
     """8-connected components of a set of pixels on a detector.
+
+    The pixels are sorted by linear index (LSD radix sort, 11-bit digits) and cut into horizontal runs; runs in
+    consecutive rows that touch (diagonals included) are joined by a monotone scan of the sorted runs. No lookup in
+    a detector-sized map, whose rows lie far apart in memory.
 
     Parameters
     ----------
     above_lin : ndarray of int64, shape (A,)
-        Linear indices of the pixels (distinct).
+        Linear indices of the pixels (distinct, in [0, n_rows · n_cols)).
     n_rows, n_cols : int
         Detector size, px.
-    buf, uniq : ndarray of int32 (n_rows * n_cols,), ndarray of int64 (U,)
-        A sparse set holding every pixel of ``above_lin`` (``buf[uniq[i]] == i``).
-    pos : ndarray of int64, shape (U,)
-        For each compact id, its index in ``above_lin`` or −1.
 
     Returns
     -------
@@ -57,38 +58,78 @@ def sparse_components(above_lin, n_rows, n_cols, buf, uniq, pos):
     n_comp : int
     """
     a = len(above_lin)
-    n_u = len(uniq)
-    parent = np.arange(a)
+    key = above_lin.copy()
+    idx = np.arange(a)  # sorted position -> index in above_lin
+    key2 = np.empty(a, dtype=np.int64)
+    idx2 = np.empty(a, dtype=np.int64)
+    count = np.empty(2048, dtype=np.int64)
+    top = n_rows * n_cols - 1
+    shift = 0
+    while (top >> shift) > 0:
+        count[:] = 0
+        for i in range(a):
+            count[(key[i] >> shift) & 2047] += 1
+        acc = 0
+        for d in range(2048):
+            m = count[d]
+            count[d] = acc
+            acc += m
+        for i in range(a):  # stable, so the earlier digits' order holds among equal digits
+            d = (key[i] >> shift) & 2047
+            t = count[d]
+            key2[t] = key[i]
+            idx2[t] = idx[i]
+            count[d] = t + 1
+        key, key2 = key2, key
+        idx, idx2 = idx2, idx
+        shift += 11
+    # horizontal runs: first and last pixel, end of their row (linear, exclusive); the spare sort arrays hold them
+    run_lo = key2
+    run_row_end = idx2
+    run_hi = np.empty(a, dtype=np.int64)
+    run_of = np.empty(a, dtype=np.int64)  # run of each pixel, indexed as above_lin
+    inv_cols = 1.0 / n_cols
+    n_run = -1
+    row_end = 0
+    prev = -2
     for i in range(a):
-        px = above_lin[i]
-        r = px // n_cols
-        c = px - r * n_cols
-        for d in range(4):  # forward half of the 8-neighbourhood: (0, 1), (1, −1), (1, 0), (1, 1)
-            dr = 0 if d == 0 else 1
-            dc = 1 if d == 0 else d - 2
-            rr = r + dr
-            cc = c + dc
-            if rr >= n_rows or cc < 0 or cc >= n_cols:
-                continue
-            q = rr * n_cols + cc
-            k = buf[q]
-            if k < 0 or k >= n_u or uniq[k] != q:
-                continue
-            j = pos[k]
-            if j < 0:
-                continue
-            ri = _find(parent, i)
-            rj = _find(parent, j)
-            if ri != rj:
-                if ri < rj:
-                    parent[rj] = ri
-                else:
-                    parent[ri] = rj
+        px = key[i]
+        if px >= row_end:
+            r, _ = split_pixel_index(px, n_cols, inv_cols)
+            row_end = (r + 1) * n_cols
+            prev = -2
+        if px != prev + 1:
+            n_run += 1
+            run_lo[n_run] = px
+            run_row_end[n_run] = row_end
+        run_hi[n_run] = px
+        run_of[idx[i]] = n_run
+        prev = px
+    n_run += 1
+    # union-find over runs: a run joins the runs of the next row overlapping its columns widened by one
+    parent = np.arange(n_run)
+    j = 0
+    for r in range(n_run):
+        lo = max(run_lo[r] + n_cols - 1, run_row_end[r])
+        hi = min(run_hi[r] + n_cols + 1, run_row_end[r] + n_cols - 1)
+        while j < n_run and run_hi[j] < lo:
+            j += 1
+        k = j
+        while k < n_run and run_lo[k] <= hi:
+            rr = _find(parent, r)
+            rk = _find(parent, k)
+            if rr < rk:
+                parent[rk] = rr
+            elif rk < rr:
+                parent[rr] = rk
+            k += 1
+    for r in range(n_run):
+        parent[r] = parent[parent[r]]  # a root is the smallest run of its tree, so this pass in order flattens all
     labels = np.empty(a, dtype=np.int64)
-    comp_of_root = np.full(a, -1, dtype=np.int64)
+    comp_of_root = np.full(n_run, -1, dtype=np.int64)
     n_comp = 0
     for i in range(a):
-        root = _find(parent, i)
+        root = parent[run_of[i]]
         if comp_of_root[root] < 0:
             comp_of_root[root] = n_comp
             n_comp += 1
@@ -135,18 +176,40 @@ def measure_components(labels, n_comp, rows, cols, signal, saturated_px, noise_p
     noise = np.zeros(n_comp)
     peak = np.full(n_comp, -np.inf)
     peak_pixel = np.full(n_comp, -1, dtype=np.int64)
-    for i in range(len(labels)):
+    n = len(labels)
+    i = 0
+    while i < n:
+        # a run of pixels of one component keeps its sums in registers (added in the same order): summing into
+        # the arrays pixel by pixel waits on the previous pixel's store each time
         k = labels[i]
-        s = signal[i]
-        area[k] += 1
-        inten[k] += s
-        sx[k] += s * cols[i]
-        sy[k] += s * rows[i]
-        sat[k] |= saturated_px[i]
-        noise[k] += noise_px[i]
-        if s >= peak[k]:
-            peak[k] = s
-            peak_pixel[k] = i
+        ar = area[k]
+        it = inten[k]
+        x = sx[k]
+        y = sy[k]
+        st = sat[k]
+        ns = noise[k]
+        pk = peak[k]
+        pp = peak_pixel[k]
+        while i < n and labels[i] == k:
+            s = signal[i]
+            ar += 1
+            it += s
+            x += s * cols[i]
+            y += s * rows[i]
+            st |= saturated_px[i]
+            ns += noise_px[i]
+            take = s >= pk
+            pk = s if take else pk
+            pp = i if take else pp
+            i += 1
+        area[k] = ar
+        inten[k] = it
+        sx[k] = x
+        sy[k] = y
+        sat[k] = st
+        noise[k] = ns
+        peak[k] = pk
+        peak_pixel[k] = pp
     for k in range(n_comp):
         d = inten[k] if inten[k] > 0 else 1.0
         sx[k] /= d
@@ -329,30 +392,31 @@ def detect_sparse(lin, dn, background_dn, threshold_dn, saturation_dn, k_sigma, 
         Brightest first.
     """
     n_u = len(lin)
-    pos = np.full(n_u, -1, dtype=np.int64)
+    pos = np.empty(n_u, dtype=np.int64)
+    at = np.empty(n_u, dtype=np.int64)  # compact id of each detected pixel
     a = 0
-    for i in range(n_u):
-        if dn[i] > threshold_dn[i]:
-            pos[i] = a
-            a += 1
+    for i in range(n_u):  # branch-free: whether a pixel is detected is unpredictable
+        hit = dn[i] > threshold_dn[i]
+        pos[i] = a if hit else -1
+        at[a] = i
+        a += hit
     above = np.empty(a, dtype=np.int64)
     rows = np.empty(a)
     cols = np.empty(a)
     signal = np.empty(a)
     sat_px = np.empty(a, dtype=np.bool_)
     noise_px = np.empty(a)
-    for i in range(n_u):
-        j = pos[i]
-        if j < 0:
-            continue
+    inv_cols = 1.0 / n_cols
+    for j in range(a):
+        i = at[j]
         above[j] = lin[i]
-        r = lin[i] // n_cols
+        r, c = split_pixel_index(lin[i], n_cols, inv_cols)
         rows[j] = r
-        cols[j] = lin[i] - r * n_cols
+        cols[j] = c
         signal[j] = dn[i] - background_dn[i]
         sat_px[j] = dn[i] >= saturation_dn
         noise_px[j] = (threshold_dn[i] - background_dn[i]) / k_sigma
-    labels, n_comp = sparse_components(above, n_rows, n_cols, buf, lin, pos)
+    labels, n_comp = sparse_components(above, n_rows, n_cols)
     x, y, inten, area, sat, noise, peak, peak_pixel = measure_components(labels, n_comp, rows, cols, signal, sat_px,
                                                                          noise_px)
     if gaussian and n_comp > 0:

@@ -140,9 +140,11 @@ def frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
         mean_xy = 0.5 * (paths[:, 0] + paths[:, -1])
         xys.append(mean_xy)
         exp_e.append(np.tile(pe_deb * g, n))
-        optical_paths.append(paths)
-        optical_total.append(np.tile(pe_deb, n))
-        optical_source.append(q + np.arange(n * nd))
+        total = np.tile(pe_deb, n)
+        keep = _on_detector(paths, margin, w, h) & (total > 0)  # the test frame_star_spots applies to the stars
+        optical_paths.append(paths[keep])
+        optical_total.append(total[keep])
+        optical_source.append((q + np.arange(n * nd))[keep])
         q += n * nd
 
     nc = len(fo.cosmic_e)
@@ -157,15 +159,10 @@ def frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
         cosmic = _paths_to_spots(cpaths, fo.cosmic_e, np.full(nc, COSMIC_SIGMA_PX), q + np.arange(nc), True)
         q += nc
 
-    if len(optical_paths) > 1:  # debris: their paths kept as the stars' are, after them
-        deb_paths, deb_total, deb_source = optical_paths.pop(), optical_total.pop(), optical_source.pop()
-        keep = _on_detector(deb_paths, margin, w, h) & (deb_total > 0)
-        optical_paths.append(deb_paths[keep])
-        optical_total.append(deb_total[keep])
-        optical_source.append(deb_source[keep])
-    paths = np.concatenate(optical_paths) if len(optical_paths) > 1 else optical_paths[0]
-    total = np.concatenate(optical_total) if len(optical_total) > 1 else optical_total[0]
-    source = np.concatenate(optical_source) if len(optical_source) > 1 else optical_source[0]
+    if nd:  # the kept debris after the kept stars
+        paths, total, source = (np.concatenate(x) for x in (optical_paths, optical_total, optical_source))
+    else:
+        paths, total, source = star_paths, star_total, star_source
     optical = _paths_to_spots(paths, total, np.full(len(total), sigma), source, False)
     table = dict(
         kind=np.concatenate(kinds),

@@ -87,7 +87,7 @@ class Photometry:
             * self.quantum_efficiency
         )
 
-    def pe_rate(self, vmag, bv=0.0) -> np.ndarray:
+    def pe_rate(self, vmag, bv=0.0, *, validate: bool = True) -> np.ndarray:
         """Photoelectron rate of stars, pe/s.
 
         Parameters
@@ -96,14 +96,18 @@ class Photometry:
             V magnitudes.
         bv : array_like, shape (K,) or scalar
             B−V colour indices (used only through ``color_term_per_bv``).
+        validate : bool
+            False takes ``vmag`` and ``bv`` as they are: float64 arrays (or floats) the caller has checked, as a
+            frame's scene holds them (the per-frame path).
 
         Returns
         -------
         ndarray, shape (K,)
         """
-        v = as_float_array(vmag, "vmag")
-        b = as_float_array(bv, "bv")
-        return self.pe_per_s_at_v0 * 10.0 ** (-0.4 * (v + self.color_term_per_bv * b))
+        if validate:
+            vmag = as_float_array(vmag, "vmag")
+            bv = as_float_array(bv, "bv")
+        return self.pe_per_s_at_v0 * 10.0 ** (-0.4 * (vmag + self.color_term_per_bv * bv))
 
     def magnitude_of_rate(self, pe_per_s) -> np.ndarray:
         """Inverse of :meth:`pe_rate` for B−V = 0: the V magnitude giving ``pe_per_s``."""

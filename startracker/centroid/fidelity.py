@@ -177,24 +177,6 @@ def _background_vector(bg) -> np.ndarray:
                                           dtype=np.float64))
 
 
-_PHOTOMETRY_CACHE: dict = {}
-
-
-def _star_pe_constants(model: SensorModel):
-    """``(pe/s at V = 0, colour term per B−V)`` of the model's photometry, so that a frame's star electrons are
-    ``rate0 · 10^(−0.4 (V + c · (B−V))) · τ``, the formula of :meth:`SensorModel.star_pe`, without re-checking
-    the scene's float64 magnitudes."""
-    hit = _PHOTOMETRY_CACHE.get(id(model))
-    if hit is not None and hit[0] is model:
-        return hit[1]
-    ph = model.photometry
-    v = (float(ph.pe_per_s_at_v0), float(ph.color_term_per_bv))
-    if len(_PHOTOMETRY_CACHE) > 64:
-        _PHOTOMETRY_CACHE.clear()
-    _PHOTOMETRY_CACHE[id(model)] = (model, v)
-    return v
-
-
 _KINDS = np.array([KIND_STAR, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_NOISE], dtype=np.int64)
 _NO_FALSE = FalseObjects.none()
 _EMPTY_1 = np.zeros(0)
@@ -226,11 +208,10 @@ def draw_centroid_inputs(scene: Scene, model: SensorModel, rng, k_sigma: float, 
     tau = plan.exposure_s
     n = plan.n_exposures
     fo = draw_false_objects(scene, model, rng, validate=False) if include_false else _NO_FALSE
-    rate0, color_term = _star_pe_constants(model)
-    star_pe = rate0 * 10.0 ** (-0.4 * (scene.vmag + color_term * scene.bv)) * tau
+    star_pe = model.star_pe(scene.vmag, scene.bv, tau, validate=False)  # the scene's float64 magnitudes
     nd = len(fo.debris_vmag)
     if nd:
-        debris_pe = rate0 * 10.0 ** (-0.4 * (fo.debris_vmag + color_term * np.zeros(nd))) * tau
+        debris_pe = model.star_pe(fo.debris_vmag, np.zeros(nd), tau, validate=False)
         t_mid = scene.t_frame_start + 0.5 * plan.frame_period_s
         t_start = scene.path_times[:, 0] - t_mid
         t_end = scene.path_times[:, -1] - t_mid
@@ -284,11 +265,12 @@ def candidate_pairs(xy: np.ndarray, r: float) -> np.ndarray:
 
 
 def _pixel_fidelity(scene, model, rng, k, method, min_area_px, psf_sigma_px, include_false) -> Centroids:
+    # checked by simulate_detections (or its per-frame caller's contract)
     if include_false:
-        sf = render_sparse(scene, model, rng, k)
+        sf = render_sparse(scene, model, rng, k, validate=False)
     else:
         sf = render_sparse(scene, replace(model, hot_pixel_fraction=0.0), rng, k,
-                           false_objects=FalseObjects.none(), draw_crossings=False)
+                           false_objects=FalseObjects.none(), draw_crossings=False, validate=False)
     return detections_from_sparse(sf, method, min_area_px=min_area_px, psf_sigma_px=psf_sigma_px)
 
 
@@ -413,7 +395,7 @@ def _brighter_sky(model: SensorModel, scene: Scene, sigma_ratio: float) -> Senso
     if not sigma_ratio > 1.0:
         raise ValueError(f"background_sigma_ratios must be >= 1, got {sigma_ratio}")
     bg = background_field(scene, model)
-    extra = (sigma_ratio**2 - 1.0) * float(bg.var_e(bg.cx, bg.cy))
+    extra = (sigma_ratio**2 - 1.0) * bg.var_e_centre
     a, b = bg.prnu_sigma**2, bg.enf2_c
     q = extra / b if a == 0.0 else (-b + math.sqrt(b * b + 4.0 * a * extra)) / (2.0 * a)
     q_sky = bg.gain * max(bg.opt0, 1e-300)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -94,6 +95,23 @@ class BackgroundField:
     def threshold_dn(self, x, y, k_sigma: float) -> np.ndarray:
         """Detection threshold ``mean + k σ`` in DN (a pixel is above it when DN > threshold)."""
         return self.mean_dn(x, y) + k_sigma * self.sigma_dn(x, y)
+
+    # The values at the principal point, once per field: a quiet sky's field is one object for every frame
+    # (background_field), and each per-frame call of the array methods on two scalars costs ~2.5 µs.
+    @cached_property
+    def var_e_centre(self) -> float:
+        """:meth:`var_e` at the principal point ``(cx, cy)``, e⁻²."""
+        return float(self.var_e(self.cx, self.cy))
+
+    @cached_property
+    def mean_dn_centre(self) -> float:
+        """:meth:`mean_dn` at the principal point, DN."""
+        return float(self.mean_dn(self.cx, self.cy))
+
+    @cached_property
+    def sigma_dn_centre(self) -> float:
+        """:meth:`sigma_dn` at the principal point, DN."""
+        return float(self.sigma_dn(self.cx, self.cy))
 
 
 _QUIET_CACHE: dict = {}

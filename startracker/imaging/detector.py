@@ -312,9 +312,10 @@ class SensorModel:
         f2 = self.excess_noise_factor**2
         return math.inf if f2 <= 1.0 else 1.0 / (f2 - 1.0)
 
-    def star_pe(self, vmag, bv, exposure_s: float) -> np.ndarray:
-        """Expected photoelectrons of stars in one exposure, shape like ``vmag``."""
-        return self.photometry.pe_rate(vmag, bv) * float(exposure_s)
+    def star_pe(self, vmag, bv, exposure_s: float, *, validate: bool = True) -> np.ndarray:
+        """Expected photoelectrons of stars in one exposure of ``exposure_s`` seconds, shape like ``vmag``
+        (``validate`` as :meth:`startracker.photometry.Photometry.pe_rate`)."""
+        return self.photometry.pe_rate(vmag, bv, validate=validate) * float(exposure_s)
 
 
 @lru_cache(maxsize=32)

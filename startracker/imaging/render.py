@@ -462,7 +462,7 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         if model.intensified:
             randomize_intensified(optical, model, rng)
         # drop window pixels whose expected light is below _SPARSE_FLOOR of the background noise (units of val)
-        floor_e = _SPARSE_FLOOR * math.sqrt(float(bg.var_e(bg.cx, bg.cy)))
+        floor_e = _SPARSE_FLOOR * math.sqrt(bg.var_e_centre)
         o_lin, o_val, o_src = render_windows(optical, hw, n_cols, n_rows, floor_e if model.intensified else floor_e / g)
     d_lin, d_val, d_src = empty_i, empty_f, empty_i
     if cosmic is not None:
@@ -515,6 +515,6 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         entry_e=all_exp,
         k_sigma=k_sigma,
         _index=index,
-        background_dn_centre=float(bg.mean_dn(bg.cx, bg.cy)),
-        noise_dn_centre=float(bg.sigma_dn(bg.cx, bg.cy)),
+        background_dn_centre=bg.mean_dn_centre,
+        noise_dn_centre=bg.sigma_dn_centre,
     )

@@ -112,7 +112,7 @@ def frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
     g = model.intensifier_gain
     margin = 5.0 * sigma
 
-    pe_star = model.star_pe(scene.vmag, scene.bv, tau)  # (M,)
+    pe_star = model.star_pe(scene.vmag, scene.bv, tau, validate=False)  # (M,), the scene's float64 magnitudes
     # the stars' sources and their paths on the detector in one compiled pass (the bulk of a frame's sources)
     star, expo, xy, exp_star, star_paths, star_total, star_source = frame_star_spots(
         np.ascontiguousarray(scene.xy_path, dtype=np.float64), np.ascontiguousarray(pe_star, dtype=np.float64),
@@ -133,7 +133,7 @@ def frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
         dt = scene.path_times - t_mid  # (N, S)
         paths = fo.debris_xy0[None, :, None, :] + fo.debris_velocity_px_s[None, :, None, :] * dt[:, None, :, None]
         paths = paths.reshape(n * nd, -1, 2)  # exposure-major
-        pe_deb = model.star_pe(fo.debris_vmag, np.zeros(nd), tau)
+        pe_deb = model.star_pe(fo.debris_vmag, np.zeros(nd), tau, validate=False)
         kinds.append(np.full(n * nd, KIND_DEBRIS))
         stars.append(np.full(n * nd, -1))
         expos.append(np.repeat(np.arange(n), nd))
@@ -197,7 +197,7 @@ def window_half_widths(spots: Spots, bg: "BackgroundField", e_per_unit: float, f
     """Per-spot window half width, px: where the spot's profile falls to ``floor_frac`` of the background
     noise σ (at least 2σ), +1 px so that every detected pixel has its neighbours. Shape (P,)."""
     peak_e = spots.sub_w.sum(axis=1) * e_per_unit / (2 * np.pi * spots.sigma**2)
-    floor_e = floor_frac * math.sqrt(max(float(bg.var_e(bg.cx, bg.cy)), 1e-6))
+    floor_e = floor_frac * math.sqrt(max(bg.var_e_centre, 1e-6))
     r = spots.sigma * np.sqrt(2.0 * np.log(np.maximum(peak_e / floor_e, math.e)))
     return np.ceil(np.maximum(r, 2.0 * spots.sigma)).astype(np.int64) + 1
 

@@ -212,6 +212,34 @@ def test_quiet_sky_background_is_the_sky_every_frame_and_a_bright_body_still_cou
     assert background_field(sc, other).opt0 == pytest.approx(10 * sky_pe, rel=1e-9)
 
 
+
+def test_background_at_the_principal_point_and_star_electrons_as_the_formulas_give():
+    """The field's cached values at the principal point follow the noise model written out (shot through the
+    intensifier, dark, read, PRNU; DN with bias and 1/12 DN² quantisation), for a field with a gradient (a sun
+    in view); a frame's star electrons, unchecked (the per-frame path), are the photometry formula
+    ``rate0 · 10^(−0.4 (V + c (B−V))) · τ``, as the checked call gives them."""
+    cam = camera_preset("paper000")
+    cat = load_catalog(5.0)
+    model = SensorModel()
+    plan = ExposurePlan(7, 1e-3)
+    a = np.radians(40.0)
+    sc = compute_scene(cam, cat, lambda t: np.tile([1.0, 0, 0, 0], (len(t), 1)), plan, 0.0,
+                       bright_bodies=[BrightBody("sun", (np.sin(a), 0.0, np.cos(a)))])
+    bg = background_field(sc, model)
+    assert not bg.flat
+    q = bg.gain * bg.opt0  # at (cx, cy) the plane is opt0
+    var = bg.enf2_c * q + bg.dark_e + bg.read_var_e2 + (bg.prnu_sigma * q) ** 2
+    assert bg.var_e_centre == pytest.approx(var, rel=1e-12)
+    assert bg.mean_dn_centre == pytest.approx((q + bg.dark_e) / bg.gain_e_per_dn + bg.bias_dn, rel=1e-12)
+    assert bg.sigma_dn_centre == pytest.approx(np.sqrt(var / bg.gain_e_per_dn**2 + 1 / 12), rel=1e-12)
+    quiet = compute_scene(cam, cat, lambda t: np.tile([1.0, 0, 0, 0], (len(t), 1)), plan, 0.0)
+    ph = model.photometry
+    expected = ph.pe_per_s_at_v0 * 10.0 ** (-0.4 * (quiet.vmag + ph.color_term_per_bv * quiet.bv)) * 2e-3
+    for validate in (True, False):
+        np.testing.assert_allclose(model.star_pe(quiet.vmag, quiet.bv, 2e-3, validate=validate), expected, rtol=1e-14)
+    with pytest.raises(ValueError, match="vmag"):
+        model.star_pe(np.array([np.nan]), np.zeros(1), 2e-3)
+
 # ------------------------------------------------------------------------------------- false objects
 def test_cosmic_ray_rate():
     model = SensorModel(cosmic_ray_rate_per_cm2_s=50.0)

@@ -7,9 +7,6 @@ predicted points are the true spots (W = N·M), the observed points the true spo
 (1 px unless varied), in scan order. r = 6σ by the radius rule of ``startracker.track``.
 
 Timed per call (wall clock, ``time.perf_counter``), all three matchers on the same scenes in the same run,
-through the checked public API (``match_stars``), and the two compiled matchers also as the tracker calls them
-(``dkvlut kernel``, ``brute kernel``: the compiled call alone on contiguous float64 arrays, no checks; the ratio of
-the two measures the algorithm, not the language or the checks),
 median of 5 consecutive calls per scene and method (3 in Table 3), the order of the methods rotating from
 scene to scene, then median and interquartile range over the scenes. ``dkvlut`` includes building both k-vector tables (as the paper's t_c does),
 ``kdtree`` includes building the cKDTree, ``brute`` is the all-pairs loop (compiled, as the DKVLUT). Table 3 also
@@ -29,7 +26,6 @@ import time
 import numpy as np
 
 from startracker.catalog import load_catalog
-from startracker.kernels.track import dkvlut_build_match, match_brute
 from startracker.optics import camera_preset
 from startracker.rotations import quat_random
 from startracker.track import MATCH_METHODS, DKVLUT, match_stars, predict_star_positions, prediction_radius_px
@@ -62,7 +58,7 @@ def make_scene(cam, cat, n_exp: int, m_stars: int, sigma_px: float, rng):
     pred = p.xy[sel]
     obs = pred + rng.normal(0.0, sigma_px, pred.shape)
     scan = np.lexsort((obs[:, 0], np.floor(obs[:, 1])))
-    return np.ascontiguousarray(pred, dtype=np.float64), np.ascontiguousarray(obs[scan], dtype=np.float64), scan
+    return pred, obs[scan], scan
 
 
 def one_by_one(pred, obs, r):
@@ -74,12 +70,6 @@ def one_by_one(pred, obs, r):
         if d2[j] <= r * r:
             out[i] = j
     return out
-
-
-def kernel_methods():
-    """The two compiled matchers as the tracker calls them: contiguous float64 arrays, a float radius, no checks."""
-    return {"dkvlut kernel": lambda p, o, rr: dkvlut_build_match(p, o, float(rr)),
-            "brute kernel": lambda p, o, rr: match_brute(p, o, float(rr))}
 
 
 def time_methods(scenes, r, methods, extra=None, rounds=5):
@@ -131,9 +121,7 @@ def iqr_ms(a):
 
 def sweep(title, label, values, scene_args, cam, cat, reps, rng, paper=None):
     print(f"\n{title}")
-    hdr = (f"{label:>4} {'W':>5} | {'dkvlut ms':>9} {'(IQR)':>13} | {'brute ms':>8} {'(IQR)':>13} | {'kdtree ms':>9} "
-           f"{'(IQR)':>13} | {'brute/dk':>8} {'kd/dk':>6} | {'dk kernel ms':>12} {'brute kernel ms':>15} "
-           f"{'kernels brute/dk':>16} | {'acc %':>6} {'acc res %':>9}")
+    hdr = f"{label:>4} {'W':>5} | {'dkvlut ms':>9} {'(IQR)':>13} | {'brute ms':>8} {'(IQR)':>13} | {'kdtree ms':>9} {'(IQR)':>13} | {'brute/dk':>8} {'kd/dk':>6} | {'acc %':>6} {'acc res %':>9}"
     if paper:
         hdr += " | paper s (existing, DKVLUT)"
     print(hdr)
@@ -142,13 +130,11 @@ def sweep(title, label, values, scene_args, cam, cat, reps, rng, paper=None):
         n, m, sigma = scene_args(v)
         r = prediction_radius_px(sigma)
         scenes = [make_scene(cam, cat, n, m, sigma, rng) for _ in range(reps)]
-        t, acc, acc_res, _ = time_methods(scenes, r, list(MATCH_METHODS), extra=kernel_methods())
+        t, acc, acc_res, _ = time_methods(scenes, r, list(MATCH_METHODS))
         dk, br, kd = (ms(t[k]) for k in MATCH_METHODS)
-        dk_k, br_k = ms(t["dkvlut kernel"]), ms(t["brute kernel"])
         line = (
             f"{v:>4} {n * m:>5} | {dk:9.3f} {iqr_ms(t['dkvlut']):>13} | {br:8.3f} {iqr_ms(t['brute']):>13} | "
-            f"{kd:9.3f} {iqr_ms(t['kdtree']):>13} | {br / dk:8.1f} {kd / dk:6.2f} | {dk_k:12.3f} {br_k:15.3f} "
-            f"{br_k / dk_k:16.1f} | {100 * acc:6.2f} {100 * acc_res:9.3f}"
+            f"{kd:9.3f} {iqr_ms(t['kdtree']):>13} | {br / dk:8.1f} {kd / dk:6.2f} | {100 * acc:6.2f} {100 * acc_res:9.3f}"
         )
         if paper and v in paper:
             line += f" | {paper[v][0]:.3f}, {paper[v][1]:.3f}"
@@ -199,8 +185,7 @@ def main(argv=None):
         return DKVLUT(pred)
 
     t, acc, acc_res, frac = time_methods(
-        scenes, 6.0, list(MATCH_METHODS),
-        extra={**kernel_methods(), "one-by-one loop": one_by_one, "dkvlut build only": dk_build}, rounds=3
+        scenes, 6.0, list(MATCH_METHODS), extra={"one-by-one loop": one_by_one, "dkvlut build only": dk_build}, rounds=3
     )
     hdr = f"{'method':<22} | {'mean ms':>8} {'std ms':>8} {'median ms':>9} {'IQR ms':>13} | {'/ dkvlut':>8} | paper (mean, std) s"
     print(hdr)
@@ -210,9 +195,6 @@ def main(argv=None):
     for name, v in t.items():
         pp = f"{paper[name][0]:.3f}, {paper[name][1]:.3f}" if name in paper else ""
         print(f"{name:<22} | {1e3 * v.mean():8.3f} {1e3 * v.std():8.3f} {ms(v):9.3f} {iqr_ms(v):>13} | {ms(v) / dk_med:8.2f} | {pp}")
-    print(f"compiled kernels alone (as the tracker calls them): brute / DKVLUT = "
-          f"{ms(t['brute kernel']) / ms(t['dkvlut kernel']):.1f}x (medians); through match_stars: "
-          f"{ms(t['brute']) / dk_med:.1f}x")
     print(f"accuracy {100 * acc:.3f} % of all spots, {100 * acc_res:.4f} % of the {100 * frac:.1f} % resolvable spots "
           "(all methods identical on every scene)")
     print(f"paper ratio existing/DKVLUT: {PAPER_N15_M30[0] / PAPER_N15_M30[1]:.1f}x (Fig. 5), "

@@ -47,74 +47,7 @@ def _ndtr(x):
     return 0.5 * math.erfc(-x / math.sqrt(2.0))
 
 
-@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, peak_f, photon_f, bg_f, lock_f,
-            min_log_ratio, intensified):
-    """One spot of :func:`spot_theory`: the 13 values of ``THEORY_COLUMNS``."""
-    se2 = sigma * sigma + 1.0 / 12.0
-    return _theory_se(s_units, gain, f2, se2, math.sqrt(se2), sigma_o, c_splash, length, var_b, math.sqrt(var_b), thr_e,
-                      peak_f, photon_f, bg_f, lock_f, min_log_ratio, intensified)
-
-
-@njit(cache=True, no_cfunc_wrapper=True)
-def _theory_se(s_units, gain, f2, se2, se, sigma_o, c_splash, length, var_b, sd_b, thr_e, peak_f, photon_f, bg_f, lock_f,
-               min_log_ratio, intensified):
-    """:func:`_theory` given ``se2 = σ² + 1/12``, ``se = √se2`` and ``sd_b = √var_b`` (constant over a frame's spots
-    of one kind on a flat background: computed once there)."""
-    if length > 1e-6:
-        lpos = max(length, 1e-9)
-        phi = (_SQRT_2PI * se / lpos) * math.erf(lpos / (2.0 * math.sqrt(2.0) * se))
-    else:
-        phi = 1.0
-    total_e = gain * s_units
-    peak = total_e * phi / (2.0 * math.pi * se2)
-    s_safe = max(s_units, 1e-12)
-    if intensified:
-        var_peak = peak * peak * f2 / s_safe + gain * f2 * c_splash * peak + var_b
-    else:
-        var_peak = gain * f2 * peak + var_b
-    # the brightest pixel near the centre beats the mean peak by photon clumping: the boost fades as the
-    # background's share of the peak's variance grows (stray light)
-    cp = peak * (1.0 + (peak_f - 1.0) * (var_peak - var_b) / var_peak)
-    p_det = _ndtr((cp - thr_e) / math.sqrt(var_peak))
-    # a barely detected spot is an upward fluctuation that keeps its few brightest pixels: floor on a
-    a = max(math.log(max(cp / max(thr_e, 1e-12), 1e-300)), min_log_ratio)
-    r2 = 2.0 * se2 * a
-    r = math.sqrt(r2)
-    exp_a = math.exp(-a)
-    frac = max(1.0 - exp_a, 1e-6)
-    m2 = se2 * (1.0 - a * exp_a / frac)
-    len2 = length * length
-    len3 = len2 * length
-    l2 = len2 / 12.0
-    if intensified:
-        ph_cross = f2 * (sigma_o * sigma_o + c_splash * m2 / frac) / s_safe
-        ph_along = f2 * (sigma_o * sigma_o + l2 + c_splash * (m2 + l2) / frac) / s_safe
-    else:
-        ph_cross = f2 * m2 / (s_safe * frac)
-        ph_along = f2 * (m2 + l2) / (s_safe * frac)
-    cap = total_e * frac
-    disc = math.pi * r2 * r2 / 4.0
-    cap2 = max(cap, 1e-12) ** 2
-    a_cross = disc + (2.0 * r) ** 3 * length / 12.0
-    a_along = disc + 2.0 * r * len3 / 12.0 + math.pi * r2 * len2 / 4.0
-    # support noise: pixels near the threshold join or leave the component at random, each carrying about T
-    edge_k = _INV_SQRT_PI * thr_e * sd_b * se2 / max(r, 1e-6) / cap2
-    side = 2.0 * length * r2
-    ring = math.pi * r2 * r
-    bg_cross = var_b * a_cross / cap2 + edge_k * (side + ring)
-    bg_along = var_b * a_along / cap2 + edge_k * (len3 / 6.0 + math.pi * r * len2 / 2.0 + ring + side)
-    lock_cross = (1.0 - m2 / se2) ** 2 / 12.0
-    lock_along = (1.0 - (m2 + l2) / (se2 + l2)) ** 2 / 12.0
-    var_cross = photon_f * ph_cross + bg_f * bg_cross + lock_f * lock_cross
-    var_along = photon_f * ph_along + bg_f * bg_along + lock_f * lock_along
-    area = max(math.pi * r2 + 2.0 * r * length, 1.0)
-    var_cap = gain * gain * f2 * s_units * frac + var_b * area
-    return (p_det, ph_along, ph_cross, bg_along, bg_cross, lock_along, lock_cross, var_along, var_cross, cap, var_cap,
-            area, peak)
-
-
-@njit(cache=True, no_cfunc_wrapper=True)
+@njit(cache=True, no_cfunc_wrapper=True, error_model="numpy")
 def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, factors, intensified):
     """Closed-form statistics of a thresholded centre of mass, spot by spot.
 
@@ -162,12 +95,86 @@ def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_
     """
     n = s_units.shape[0]
     out = np.empty((n, 13))
-    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
+    peak_f, photon_f, bg_f, lock_f, min_log_ratio = factors[0], factors[1], factors[2], factors[3], factors[4]
+    se2 = sigma * sigma + 1.0 / 12.0
+    se = math.sqrt(se2)
+    # In stages over all spots: the arithmetic between the library calls (erf, erfc, log, exp) then runs as vector
+    # loops (error_model="numpy": no zero-division branch; the same IEEE operations, so the same bits). The log and
+    # exp share the erfc's loop, which keeps them scalar libm calls even where numba has a vector math library.
+    phi = np.empty(n)
     for i in range(n):
-        v = _theory(s_units[i], gain, f2, sigma, sigma_o, c_splash, length[i], var_b[i], thr_e[i], pf, hf, bf, lf, ml,
-                    intensified)
-        for j in range(13):
-            out[i, j] = v[j]
+        if length[i] > 1e-6:
+            lpos = max(length[i], 1e-9)
+            phi[i] = (_SQRT_2PI * se / lpos) * math.erf(lpos / (2.0 * math.sqrt(2.0) * se))
+        else:
+            phi[i] = 1.0
+    z = np.empty(n)
+    a_ln = np.empty(n)  # cp / T, then a
+    for i in range(n):
+        total_e = gain * s_units[i]
+        peak = total_e * phi[i] / (2.0 * math.pi * se2)
+        s_safe = max(s_units[i], 1e-12)
+        var_b_i = var_b[i]
+        if intensified:
+            var_peak = peak * peak * f2 / s_safe + gain * f2 * c_splash * peak + var_b_i
+        else:
+            var_peak = gain * f2 * peak + var_b_i
+        # the brightest pixel near the centre beats the mean peak by photon clumping: the boost fades as the
+        # background's share of the peak's variance grows (stray light)
+        cp = peak * (1.0 + (peak_f - 1.0) * (var_peak - var_b_i) / var_peak)
+        z[i] = (cp - thr_e[i]) / math.sqrt(var_peak)
+        a_ln[i] = max(cp / max(thr_e[i], 1e-12), 1e-300)
+        out[i, 12] = peak
+    exp_a = np.empty(n)
+    for i in range(n):
+        out[i, 0] = _ndtr(z[i])
+        # a barely detected spot is an upward fluctuation that keeps its few brightest pixels: floor on a
+        a = max(math.log(a_ln[i]), min_log_ratio)
+        a_ln[i] = a
+        exp_a[i] = math.exp(-a)
+    for i in range(n):
+        a = a_ln[i]
+        length_i = length[i]
+        var_b_i = var_b[i]
+        r2 = 2.0 * se2 * a
+        r = math.sqrt(r2)
+        frac = max(1.0 - exp_a[i], 1e-6)
+        m2 = se2 * (1.0 - a * exp_a[i] / frac)
+        len2 = length_i * length_i
+        len3 = len2 * length_i
+        l2 = len2 / 12.0
+        s_safe = max(s_units[i], 1e-12)
+        if intensified:
+            ph_cross = f2 * (sigma_o * sigma_o + c_splash * m2 / frac) / s_safe
+            ph_along = f2 * (sigma_o * sigma_o + l2 + c_splash * (m2 + l2) / frac) / s_safe
+        else:
+            ph_cross = f2 * m2 / (s_safe * frac)
+            ph_along = f2 * (m2 + l2) / (s_safe * frac)
+        cap = gain * s_units[i] * frac
+        disc = math.pi * r2 * r2 / 4.0
+        cap2 = max(cap, 1e-12) ** 2
+        a_cross = disc + (2.0 * r) ** 3 * length_i / 12.0
+        a_along = disc + 2.0 * r * len3 / 12.0 + math.pi * r2 * len2 / 4.0
+        # support noise: pixels near the threshold join or leave the component at random, each carrying about T
+        edge_k = _INV_SQRT_PI * thr_e[i] * math.sqrt(var_b_i) * se2 / max(r, 1e-6) / cap2
+        side = 2.0 * length_i * r2
+        ring = math.pi * r2 * r
+        bg_cross = var_b_i * a_cross / cap2 + edge_k * (side + ring)
+        bg_along = var_b_i * a_along / cap2 + edge_k * (len3 / 6.0 + math.pi * r * len2 / 2.0 + ring + side)
+        lock_cross = (1.0 - m2 / se2) ** 2 / 12.0
+        lock_along = (1.0 - (m2 + l2) / (se2 + l2)) ** 2 / 12.0
+        area = max(math.pi * r2 + 2.0 * r * length_i, 1.0)
+        out[i, 1] = ph_along
+        out[i, 2] = ph_cross
+        out[i, 3] = bg_along
+        out[i, 4] = bg_cross
+        out[i, 5] = lock_along
+        out[i, 6] = lock_cross
+        out[i, 7] = photon_f * ph_along + bg_f * bg_along + lock_f * lock_along
+        out[i, 8] = photon_f * ph_cross + bg_f * bg_cross + lock_f * lock_cross
+        out[i, 9] = cap
+        out[i, 10] = gain * gain * f2 * s_units[i] * frac + var_b_i * area
+        out[i, 11] = area
     return out
 
 
@@ -357,52 +364,67 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
     g_dn = sensor[10]
     cosmic_sigma = sensor[11]
     saturation_dn, bias_dn = sensor[6], sensor[7]
-    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
     opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
     dark, gain_bg, enf2c, read_var, prnu = background[5], background[6], background[7], background[8], background[9]
     se2_optical = sigma * sigma + 1.0 / 12.0
     se2_cosmic = cosmic_sigma * cosmic_sigma + 1.0 / 12.0
-    se_optical = math.sqrt(se2_optical)
-    se_cosmic = math.sqrt(se2_cosmic)
     g_dn2 = g_dn * g_dn
     n_in = c_id.shape[0]
-    rows = np.empty(n_in, dtype=np.int64)
-    out = np.empty((n_in, 8))
-    reach = np.empty(n_in)
-    # se2, half streak, signal units, gain, splash, the detection draw scaled to U(0, 1), streak direction x, y
-    pair = np.empty((n_in, 8))
+    # the candidates that can be detected at their background: row, signal, length, background variance, threshold
+    kept = np.empty(n_in, dtype=np.int64)
+    su_k = np.empty(n_in)
+    ln_k = np.empty(n_in)
+    var_k = np.empty(n_in)
+    thr_k = np.empty(n_in)
     # a flat background (no gradient: no bright body) has one level, threshold and verdict for every spot
     flat = gx == 0.0 and gy == 0.0
-    q = var_b = sd_b = thr_e = 0.0
+    q = var_b = thr_e = 0.0
     washed_out = False
     if flat:
         q = gain_bg * max(opt0 + gx * (cx - cx) + gy * (cy - cy), 0.0)
         var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
-        sd_b = math.sqrt(var_b)
-        thr_e = k_sigma * sd_b
+        thr_e = k_sigma * math.sqrt(var_b)
         washed_out = math.floor((q + dark + thr_e) / g_dn + bias_dn) + 1.0 > saturation_dn
-    nk = 0
+    m = 0
+    m_opt = 0
     for i in range(n_in):
-        x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
         if flat:
             if washed_out:
-                continue
+                break
         else:
-            q = gain_bg * max(opt0 + gx * (x - cx) + gy * (y - cy), 0.0)
+            q = gain_bg * max(opt0 + gx * (c_g[i, 0] - cx) + gy * (c_g[i, 1] - cy), 0.0)
             var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
-            sd_b = math.sqrt(var_b)
-            thr_e = k_sigma * sd_b
+            thr_e = k_sigma * math.sqrt(var_b)
             # a pixel is detected when its DN exceeds the threshold, and no pixel reads above saturation: where the
             # background's threshold is at or above it (stray light washing the detector out) nothing is detected
             if math.floor((q + dark + thr_e) / g_dn + bias_dn) + 1.0 > saturation_dn:
                 continue
-        opt = i < n_optical
-        th = _theory_se(su, gain if opt else 1.0, f2 if opt else 1.0, se2_optical if opt else se2_cosmic,
-                        se_optical if opt else se_cosmic, sigma_o if opt else cosmic_sigma, c_splash if opt else 1.0,
-                        ln, var_b, sd_b, thr_e, pf, hf, bf, lf, ml, intensified and opt)
+        kept[m] = i
+        su_k[m] = c_g[i, 5]
+        ln_k[m] = c_g[i, 4]
+        var_k[m] = var_b
+        thr_k[m] = thr_e
+        m += 1
+        m_opt += 1 if i < n_optical else 0
+    th_opt = spot_theory(su_k[:m_opt], gain, f2, sigma, sigma_o, c_splash, ln_k[:m_opt], var_k[:m_opt], thr_k[:m_opt],
+                         factors, intensified)
+    th_cos = spot_theory(su_k[m_opt:m], 1.0, 1.0, cosmic_sigma, cosmic_sigma, 1.0, ln_k[m_opt:m], var_k[m_opt:m],
+                         thr_k[m_opt:m], factors, np.bool_(False))
+    rows = np.empty(m, dtype=np.int64)
+    out = np.empty((m, 8))
+    reach = np.empty(m)
+    # se2, half streak, signal units, gain, splash, the detection draw scaled to U(0, 1), streak direction x, y
+    pair = np.empty((m, 8))
+    nk = 0
+    for t in range(m):
+        i = kept[t]
+        opt = t < m_opt
+        th = th_opt[t] if opt else th_cos[t - m_opt]
         c = c_id[i]
         if not u_detect[c] < th[0]:
             continue
+        x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
+        var_b = var_k[t]
         if ln > 1e-9:
             ax = dx / max(ln, 1e-12)
             ay = dy / max(ln, 1e-12)
@@ -421,7 +443,7 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
         out[nk, 6] = th[11]
         out[nk, 7] = var_b
         se2 = se2_optical if opt else se2_cosmic
-        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / thr_e, 1.0))) + 0.5 * ln
+        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / thr_k[t], 1.0))) + 0.5 * ln
         pair[nk, 0] = se2
         pair[nk, 1] = 0.5 * ln
         pair[nk, 2] = max(su, 1e-12)

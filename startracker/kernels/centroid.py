@@ -616,8 +616,10 @@ def _touching(det, reach, pair, k_sigma, f2):
     """Union-find labels (K,) (the smallest member of each group) of the spots that join into one component, and
     whether each touches another. Two spots join with :func:`_merge_probability` (the saddle of their summed
     profiles above the threshold), decided by the pair's draw ``frac(u_i + u_j)`` (uniform, and independent of each
-    spot's own draws and of the pair's other pairs). Each spot is compared with those after it in its column and
-    the next (columns as wide as the largest distance at which a pair can join)."""
+    spot's own draws and of the pair's other pairs). Each spot is compared with those near it in y in its column
+    and the next (columns as wide as the largest distance at which a pair can join), the pair oriented as its
+    column order has it (the lower column first, then the smaller index): the labels do not depend on the order
+    in which pairs join (a group's root is always its smallest member)."""
     n = reach.shape[0]
     parent = np.empty(n, dtype=np.int64)
     touched = np.zeros(n, dtype=np.bool_)
@@ -633,52 +635,77 @@ def _touching(det, reach, pair, k_sigma, f2):
     if n < 2:
         return parent, touched
     col, order, start = _columns(x, 2.0 * far_max)
+    # each column by increasing y (insertion sort: a column holds a few spots), so that a spot meets only the
+    # spots within the joining distance in y, plus a margin far above the rounding of the distance test
+    n_col = start.shape[0] - 2
+    for c in range(n_col):
+        for a in range(start[c] + 1, start[c + 1]):
+            i = order[a]
+            b = a
+            while b > start[c] and det[order[b - 1], 1] > det[i, 1]:
+                order[b] = order[b - 1]
+                b -= 1
+            order[b] = i
     a_s = np.empty(33)  # scratch of the saddle search
     b_s = np.empty(33)
     lows = np.empty(24, dtype=np.int64)
-    for a in range(n):
-        i = order[a]
-        stop = start[col[i] + 2]  # the end of the next column
-        for b in range(a + 1, stop):
-            j = order[b]
-            ddx = det[j, 0] - det[i, 0]
-            ddy = det[j, 1] - det[i, 1]
-            d2 = ddx * ddx + ddy * ddy
-            if not d2 < (far[i] + far[j]) ** 2:
-                continue
-            d = math.sqrt(d2)
-            if d > 1e-9:
-                ux, uy = ddx / d, ddy / d
-            else:
-                ux, uy = 1.0, 0.0
-            half_i = pair[i, 1] * abs(pair[i, 6] * ux + pair[i, 7] * uy)
-            half_j = pair[j, 1] * abs(pair[j, 6] * ux + pair[j, 7] * uy)
-            var_b = 0.5 * (det[i, 7] + det[j, 7])
-            thr_e = k_sigma * math.sqrt(var_b)
-            u = pair[i, 5] + pair[j, 5]
-            u = u - math.floor(u)
-            # Exact shortcut for the many pairs that cannot join: the saddle is at most the summed profile at the
-            # midpoint (one of saddle_search's 33 points); below the threshold, its z-score is at most that
-            # value's with the largest signal variance (profiles never exceed their peaks), and the join
-            # probability at most the one of that bound. A draw above the bound decides "apart" without the search.
-            p_i, p_j = det[i, 5], det[j, 5]
-            ti = profile_terms(pair[i, 0], half_i)
-            tj = profile_terms(pair[j, 0], half_j)
-            s_mid = profile_at(0.5 * d, p_i, half_i, ti) + profile_at(0.5 * d, p_j, half_j, tj)
-            if s_mid < thr_e:
-                var_max = var_b + _signal_variance(p_i, pair[i], f2) + _signal_variance(p_j, pair[j], f2)
-                miss = 1.0 - _ndtr((s_mid - thr_e) / math.sqrt(var_max))
-                if u >= 1.0 - miss * miss:
-                    continue
-            p = _merge_probability(d, p_i, p_j, pair[i], pair[j], half_i, half_j, var_b, thr_e, f2, ti, tj, a_s, b_s,
-                                   lows)
-            if u < p:
-                touched[i] = True
-                touched[j] = True
-                ri = _find(parent, i)
-                rj = _find(parent, j)
-                if ri != rj:
-                    parent[max(ri, rj)] = min(ri, rj)
+    dy_max = 2.0 * far_max + 1e-6
+    for c in range(n_col):
+        lo = start[c + 1]  # the first spot of the next column not far below the current spot
+        for a in range(start[c], start[c + 1]):
+            ii = order[a]
+            y_i = det[ii, 1]
+            dy_i = far[ii] + far_max + 1e-6
+            while lo < start[c + 2] and det[order[lo], 1] < y_i - dy_max:
+                lo += 1
+            for side in range(2):  # the spots after it in its column, then those of the next column
+                for b in range(a + 1 if side == 0 else lo, start[c + 1 + side]):
+                    jj = order[b]
+                    if det[jj, 1] - y_i >= dy_i:
+                        break
+                    i = min(ii, jj) if side == 0 else ii
+                    j = max(ii, jj) if side == 0 else jj
+                    ddx = det[j, 0] - det[i, 0]
+                    ddy = det[j, 1] - det[i, 1]
+                    d2 = ddx * ddx + ddy * ddy
+                    if not d2 < (far[i] + far[j]) ** 2:
+                        continue
+                    d = math.sqrt(d2)
+                    if d > 1e-9:
+                        ux, uy = ddx / d, ddy / d
+                    else:
+                        ux, uy = 1.0, 0.0
+                    half_i = pair[i, 1] * abs(pair[i, 6] * ux + pair[i, 7] * uy)
+                    half_j = pair[j, 1] * abs(pair[j, 6] * ux + pair[j, 7] * uy)
+                    var_b = 0.5 * (det[i, 7] + det[j, 7])
+                    thr_e = k_sigma * math.sqrt(var_b)
+                    u = pair[i, 5] + pair[j, 5]
+                    u = u - math.floor(u)
+                    # Exact shortcut for the many pairs that cannot join: the saddle S is at most the summed
+                    # profile at the midpoint (one of saddle_search's 33 points); below the threshold, its z-score
+                    # is at most that value's with the largest signal variance there (the two profiles at the
+                    # saddle are >= 0 and sum to S, so neither exceeds the midpoint's sum), and the join
+                    # probability at most the one of that bound. A draw above the bound (by a margin far above its
+                    # rounding) decides "apart" without the search.
+                    p_i, p_j = det[i, 5], det[j, 5]
+                    ti = profile_terms(pair[i, 0], half_i)
+                    tj = profile_terms(pair[j, 0], half_j)
+                    s_mid = profile_at(0.5 * d, p_i, half_i, ti) + profile_at(0.5 * d, p_j, half_j, tj)
+                    if s_mid < thr_e:
+                        var_max = (var_b + _signal_variance(s_mid, pair[i], f2)
+                                   + _signal_variance(s_mid, pair[j], f2))
+                        miss = 1.0 - _ndtr((s_mid - thr_e) / math.sqrt(var_max))
+                        if u >= 1.0 - miss * miss + 1e-12:
+                            continue
+                    p = _merge_probability(d, p_i, p_j, pair[i], pair[j], half_i, half_j, var_b, thr_e, f2, ti, tj,
+                                           a_s, b_s, lows)
+                    if u < p:
+                        touched[i] = True
+                        touched[j] = True
+                        ri = _find(parent, i)
+                        rj = _find(parent, j)
+                        if ri != rj:
+                            parent[max(ri, rj)] = min(ri, rj)
     for i in range(n):
         parent[i] = _find(parent, i)
     return parent, touched

@@ -183,6 +183,10 @@ def test_saddle_search_finds_the_exhaustive_least_point(seed):
         ti, tj = profile_terms(se2[0], half[0]), profile_terms(se2[1], half[1])
         v = [profile_at(d * k / 32.0, peak[0], half[0], ti) + profile_at(d - d * k / 32.0, peak[1], half[1], tj)
              for k in range(33)]
+        a[:], b[:] = np.nan, np.nan  # the search reads the caller's first three points only
+        for k in (0, 16, 32):
+            a[k] = profile_at(d * k / 32.0, peak[0], half[0], ti)
+            b[k] = profile_at(d - d * k / 32.0, peak[1], half[1], tj)
         k = saddle_search(d, peak[0], half[0], ti, peak[1], half[1], tj, a, b, lows)
         assert k == int(np.argmin(v)), (k, int(np.argmin(v)))
         assert a[k] + b[k] == v[k]

@@ -355,7 +355,8 @@ def _candidates(xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, deb
 def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma):
     """Theory, detection and measurement of the candidates: the detected rows (D,), and per detection (D, 8) =
     truth x, y, measured x, y, charge (e⁻), expected peak (e⁻), area (px), background variance (e⁻²), the
-    reach (D,) (expected threshold radius without the peak factor, plus half the streak), and what the
+    reach (D,) (px: where the expected profile falls to a sixth of the threshold, plus half the streak; two spots
+    farther apart than the sum of theirs never join), and what the
     near-overlap model of :func:`_touching` needs (D, 8): PSF variance (px²), half streak (px), signal units,
     intensifier gain (0: not intensified), splash energy, the detection draw scaled to U(0, 1), and the streak's
     unit direction (x, y)."""
@@ -443,7 +444,7 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
         out[nk, 6] = th[11]
         out[nk, 7] = var_b
         se2 = se2_optical if opt else se2_cosmic
-        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / thr_k[t], 1.0))) + 0.5 * ln
+        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(6.0 * th[12] / thr_k[t], 1.0))) + 0.5 * ln
         pair[nk, 0] = se2
         pair[nk, 1] = 0.5 * ln
         pair[nk, 2] = max(su, 1e-12)
@@ -498,6 +499,8 @@ def saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, low
     j's at the left one. A span whose bound exceeds the least value found by a margin (10⁻⁹ of the summed peaks,
     far above the profiles' rounding: erf to an ulp over ``den >= 2 erf(10⁻³ / √2)``) holds neither a smaller
     value nor an equal one, so the index is the exhaustive search's, bit for bit, at about half the evaluations.
+    The caller evaluates the ends and the midpoint (k = 0, 16, 32) first: its own bounds on the saddle may
+    settle the question without the search (:func:`_touching`).
 
     Parameters
     ----------
@@ -510,8 +513,8 @@ def saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, low
     terms_i, terms_j : tuple
         :func:`profile_terms` of the two spots.
     a, b : ndarray, shape (33,)
-        Scratch; on return ``a[k]``, ``b[k]`` hold the two profiles at the index found (and at the other
-        evaluated points).
+        On entry ``a[k]``, ``b[k]`` for k = 0, 16, 32 hold the profiles there, the rest is scratch; on return
+        they hold the two profiles at the index found (and at the other evaluated points).
     lows : ndarray of int64, shape (24,)
         Scratch: the spans' left ends.
 
@@ -520,10 +523,6 @@ def saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, low
     int
         The index k in [0, 32].
     """
-    for k in (0, 16, 32):
-        s = d * k / 32.0
-        a[k] = profile_at(s, peak_i, half_i, terms_i)
-        b[k] = profile_at(d - s, peak_j, half_j, terms_j)
     best_k = 0
     best = a[0] + b[0]
     for k in (16, 32):
@@ -600,7 +599,8 @@ def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b,
     f2 : float
         Excess noise factor squared.
     terms_i, terms_j, a, b, lows
-        :func:`profile_terms` of the two spots and :func:`saddle_search`'s scratch.
+        :func:`profile_terms` of the two spots and :func:`saddle_search`'s arrays (``a``, ``b`` with the profiles
+        at k = 0, 16, 32).
     """
     k = saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, lows)
     best = a[k] + b[k]
@@ -612,26 +612,24 @@ def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b,
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _touching(det, reach, pair, k_sigma, f2):
+def _touching(det, far, pair, k_sigma, f2):
     """Union-find labels (K,) (the smallest member of each group) of the spots that join into one component, and
     whether each touches another. Two spots join with :func:`_merge_probability` (the saddle of their summed
     profiles above the threshold), decided by the pair's draw ``frac(u_i + u_j)`` (uniform, and independent of each
-    spot's own draws and of the pair's other pairs). Each spot is compared with those near it in y in its column
+    spot's own draws and of the pair's other pairs), and never farther apart than the sum of their reaches
+    ``far`` (D,) (:func:`_detect`). Each spot is compared with those near it in y in its column
     and the next (columns as wide as the largest distance at which a pair can join), the pair oriented as its
     column order has it (the lower column first, then the smaller index): the labels do not depend on the order
     in which pairs join (a group's root is always its smallest member)."""
-    n = reach.shape[0]
+    n = far.shape[0]
     parent = np.empty(n, dtype=np.int64)
     touched = np.zeros(n, dtype=np.bool_)
     x = np.empty(n)
-    far = np.empty(n)  # where a spot's expected profile falls to a sixth of the threshold
     far_max = 0.0
     for i in range(n):
         parent[i] = i
         x[i] = det[i, 0]
-        thr = k_sigma * math.sqrt(det[i, 7])
-        far[i] = math.sqrt(2.0 * pair[i, 0] * math.log(max(6.0 * det[i, 5] / thr, 1.0))) + pair[i, 1]
-        far_max = max(far_max, far[i], reach[i])
+        far_max = max(far_max, far[i])
     if n < 2:
         return parent, touched
     col, order, start = _columns(x, 2.0 * far_max)
@@ -690,15 +688,33 @@ def _touching(det, reach, pair, k_sigma, f2):
                     p_i, p_j = det[i, 5], det[j, 5]
                     ti = profile_terms(pair[i, 0], half_i)
                     tj = profile_terms(pair[j, 0], half_j)
-                    s_mid = profile_at(0.5 * d, p_i, half_i, ti) + profile_at(0.5 * d, p_j, half_j, tj)
+                    a_s[16] = profile_at(0.5 * d, p_i, half_i, ti)  # saddle_search's k = 16: s = d - s = d / 2
+                    b_s[16] = profile_at(0.5 * d, p_j, half_j, tj)
+                    s_mid = a_s[16] + b_s[16]
                     if s_mid < thr_e:
                         var_max = (var_b + _signal_variance(s_mid, pair[i], f2)
                                    + _signal_variance(s_mid, pair[j], f2))
                         miss = 1.0 - _ndtr((s_mid - thr_e) / math.sqrt(var_max))
                         if u >= 1.0 - miss * miss + 1e-12:
                             continue
-                    p = _merge_probability(d, p_i, p_j, pair[i], pair[j], half_i, half_j, var_b, thr_e, f2, ti, tj,
-                                           a_s, b_s, lows)
+                    a_s[0] = profile_at(0.0, p_i, half_i, ti)
+                    b_s[0] = profile_at(d, p_j, half_j, tj)
+                    a_s[32] = profile_at(d, p_i, half_i, ti)
+                    b_s[32] = profile_at(0.0, p_j, half_j, tj)
+                    # Exact shortcut for the pairs that surely join: i's profile falls and j's rises along the
+                    # segment, so the saddle is at least the least of the two halves' bounds (saddle_search's, with
+                    # its margin); the join probability is at least the one of that bound, with the signal
+                    # variance at its largest above the threshold (the peaks') or its least below (none).
+                    s_low = min(a_s[16] + b_s[0], a_s[32] + b_s[16]) - 1e-9 * (p_i + p_j)
+                    var_s = var_b
+                    if s_low >= thr_e:
+                        var_s = var_b + _signal_variance(p_i, pair[i], f2) + _signal_variance(p_j, pair[j], f2)
+                    miss = 1.0 - _ndtr((s_low - thr_e) / math.sqrt(var_s))
+                    if u < 1.0 - miss * miss - 1e-12:
+                        p = 1.0
+                    else:
+                        p = _merge_probability(d, p_i, p_j, pair[i], pair[j], half_i, half_j, var_b, thr_e, f2, ti,
+                                               tj, a_s, b_s, lows)
                     if u < p:
                         touched[i] = True
                         touched[j] = True
@@ -760,12 +776,12 @@ def order_decreasing(key):
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _assemble(det, reach, pair, src, rows, n_star, n_optical, kinds, sensor, background, k_sigma, n_extra):
+def _assemble(det, far, pair, src, rows, n_star, n_optical, kinds, sensor, background, k_sigma, n_extra):
     """Merge the touching detections and finish them (DN, area, saturation, SNR): the columns of the result,
     with room for ``n_extra`` single-pixel detections after them; returns the arrays and the count."""
     g_dn, bias_dn, saturation_dn = sensor[10], sensor[7], sensor[6]
-    parent, touched = _touching(det, reach, pair, k_sigma, sensor[1])
-    nk = reach.shape[0]
+    parent, touched = _touching(det, far, pair, k_sigma, sensor[1])
+    nk = far.shape[0]
     cap = nk + n_extra
     f = np.empty((cap, 8))  # xy, truth xy, intensity, peak, snr, background variance / area scratch
     lab = np.empty((cap, 3), dtype=np.int64)  # star, exposure, kind
@@ -975,8 +991,8 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
     c_id, c_g, c_src, n_optical, n_star = _candidates(
         xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s, t_end_rel_s,
         cosmic_start_xy, cosmic_end_xy, cosmic_e, n_cols, n_rows)
-    rows, det, reach, pair = _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma)
-    f, lab, area, sat, q = _assemble(det, reach, pair, c_src, rows, n_star, n_optical, kinds, sensor, background,
+    rows, det, far, pair = _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma)
+    f, lab, area, sat, q = _assemble(det, far, pair, c_src, rows, n_star, n_optical, kinds, sensor, background,
                                      k_sigma,
                                      hot_index.shape[0] + noise_index.shape[0])
     q = _single_pixels(f, lab, area, sat, q, hot_index, hot_dark_e_per_s, z_hot, noise_index, noise_dn, background,

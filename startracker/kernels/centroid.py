@@ -730,7 +730,8 @@ def _touching(det, far, pair, k_sigma, f2):
 @njit(cache=True, no_cfunc_wrapper=True)
 def order_decreasing(key):
     """Stable order of decreasing ``key`` (K,) (float64, C-contiguous, no NaN): a least-significant-digit radix
-    sort on the bits.
+    sort on the upper 32 bits, then an insertion sort on the lower 32 within each run of equal upper halves
+    (rare and short: keys that close are equal or a few ulps apart).
 
     Returns
     -------
@@ -745,17 +746,17 @@ def order_decreasing(key):
         b = bits[i]
         # increasing ukey = decreasing key: non-negative keys in reverse order first, then negative ones
         ukey[i] = b if b & sign else ~b & ~sign
-    hist = np.zeros((8, 256), dtype=np.int64)
+    hist = np.zeros((4, 256), dtype=np.int64)
     for i in range(n):
-        u = ukey[i]
-        for p in range(8):
+        u = ukey[i] >> np.uint64(32)
+        for p in range(4):
             hist[p, (u >> np.uint64(8 * p)) & np.uint64(255)] += 1
     idx = np.empty(n, dtype=np.int64)
     for i in range(n):
         idx[i] = i
     tmp = np.empty(n, dtype=np.int64)
     pos = np.empty(256, dtype=np.int64)
-    for p in range(8):
+    for p in range(4):
         same = False
         for d in range(256):
             same = same or hist[p, d] == n
@@ -765,13 +766,23 @@ def order_decreasing(key):
         for d in range(256):
             pos[d] = acc
             acc += hist[p, d]
-        shift = np.uint64(8 * p)
+        shift = np.uint64(32 + 8 * p)
         for t in range(n):
             i = idx[t]
             d = (ukey[i] >> shift) & np.uint64(255)
             tmp[pos[d]] = i
             pos[d] += 1
         idx, tmp = tmp, idx
+    upper = ~np.uint64(0xFFFFFFFF)
+    for t in range(1, n):
+        i = idx[t]
+        u = ukey[i]
+        s = t
+        # only a strictly larger lower half moves past: equal keys keep their index order
+        while s > 0 and ukey[idx[s - 1]] & upper == u & upper and ukey[idx[s - 1]] > u:
+            idx[s] = idx[s - 1]
+            s -= 1
+        idx[s] = i
     return idx
 
 

@@ -166,7 +166,8 @@ def test_sweep_pairs_leave_the_same_set_as_the_kdtree(seed):
 
 def test_order_decreasing_is_numpys_stable_argsort_of_the_negated_keys():
     """The radix order of the centroid kernels equals numpy's stable argsort of -key: spread and clustered keys,
-    exact ties, keys a few ulps apart (equal upper 32 bits), negative and infinite ones, tiny and empty inputs."""
+    exact ties, keys a few ulps apart (equal upper 32 bits), negative and infinite ones, few keys (the insertion
+    sort up to 64), tiny and empty inputs."""
     from startracker.kernels.centroid import order_decreasing
 
     rng = np.random.default_rng(7)
@@ -174,6 +175,7 @@ def test_order_decreasing_is_numpys_stable_argsort_of_the_negated_keys():
     cases = [rng.normal(size=1000), 10 ** rng.uniform(-3, 5, 900), np.round(rng.normal(size=1000), 1) + 0.0,
              np.repeat(rng.random(50), 20), near, np.concatenate([near, -near, near * 3.0]),
              np.array([0.0, 1.0, -1.0, 1e-300, -1e-300, np.inf, -np.inf, 5e-324]), np.zeros(5), np.ones(1),
+             rng.normal(size=40), np.repeat(rng.normal(size=8), 8), near[:64], 10 ** rng.uniform(-3, 5, 65),
              np.zeros(0)]
     for key in cases:
         np.testing.assert_array_equal(order_decreasing(key), np.argsort(-key, kind="stable"))

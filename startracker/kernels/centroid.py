@@ -731,7 +731,7 @@ def _touching(det, far, pair, k_sigma, f2):
 def order_decreasing(key):
     """Stable order of decreasing ``key`` (K,) (float64, C-contiguous, no NaN): a least-significant-digit radix
     sort on the upper 32 bits, then an insertion sort on the lower 32 within each run of equal upper halves
-    (rare and short: keys that close are equal or a few ulps apart).
+    (rare and short: keys that close are equal or a few ulps apart); up to 64 keys, an insertion sort.
 
     Returns
     -------
@@ -746,14 +746,17 @@ def order_decreasing(key):
         b = bits[i]
         # increasing ukey = decreasing key: non-negative keys in reverse order first, then negative ones
         ukey[i] = b if b & sign else ~b & ~sign
+    idx = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        idx[i] = i
+    if n <= 64:  # a few keys (a still frame's): an insertion sort beats the radix passes' fixed cost
+        _insertion(idx, ukey, np.uint64(0))
+        return idx
     hist = np.zeros((4, 256), dtype=np.int64)
     for i in range(n):
         u = ukey[i] >> np.uint64(32)
         for p in range(4):
             hist[p, (u >> np.uint64(8 * p)) & np.uint64(255)] += 1
-    idx = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        idx[i] = i
     tmp = np.empty(n, dtype=np.int64)
     pos = np.empty(256, dtype=np.int64)
     for p in range(4):
@@ -773,17 +776,22 @@ def order_decreasing(key):
             tmp[pos[d]] = i
             pos[d] += 1
         idx, tmp = tmp, idx
-    upper = ~np.uint64(0xFFFFFFFF)
-    for t in range(1, n):
+    _insertion(idx, ukey, ~np.uint64(0xFFFFFFFF))
+    return idx
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _insertion(idx, ukey, upper):
+    """Stable insertion sort of ``idx`` by increasing ``ukey[idx]`` within its runs of equal ``ukey & upper``
+    (``upper = 0``: the whole array); only a strictly larger key moves past, so equal keys keep their order."""
+    for t in range(1, idx.shape[0]):
         i = idx[t]
         u = ukey[i]
         s = t
-        # only a strictly larger lower half moves past: equal keys keep their index order
         while s > 0 and ukey[idx[s - 1]] & upper == u & upper and ukey[idx[s - 1]] > u:
             idx[s] = idx[s - 1]
             s -= 1
         idx[s] = i
-    return idx
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)

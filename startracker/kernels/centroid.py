@@ -417,44 +417,46 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
     # se2, half streak, signal units, gain, splash, the detection draw scaled to U(0, 1), streak direction x, y
     pair = np.empty((m, 8))
     nk = 0
-    for t in range(m):
-        i = kept[t]
-        opt = t < m_opt
-        th = th_opt[t] if opt else th_cos[t - m_opt]
-        c = c_id[i]
-        if not u_detect[c] < th[0]:
-            continue
-        x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
-        var_b = var_k[t]
-        if ln > 1e-9:
-            ax = dx / max(ln, 1e-12)
-            ay = dy / max(ln, 1e-12)
-        else:
-            ax = 1.0
-            ay = 0.0
-        e_al = z_spot[c, 0] * math.sqrt(th[7])
-        e_cr = z_spot[c, 1] * math.sqrt(th[8])
-        rows[nk] = i
-        out[nk, 0] = x
-        out[nk, 1] = y
-        out[nk, 2] = x + (ax * e_al + (-ay) * e_cr)
-        out[nk, 3] = y + (ay * e_al + ax * e_cr)
-        out[nk, 4] = max(th[9] + z_spot[c, 2] * math.sqrt(th[10]), 1e-3)
-        out[nk, 5] = th[12]
-        out[nk, 6] = th[11]
-        out[nk, 7] = var_b
-        se2 = se2_optical if opt else se2_cosmic
-        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(6.0 * th[12] / thr_k[t], 1.0))) + 0.5 * ln
-        pair[nk, 0] = se2
-        pair[nk, 1] = 0.5 * ln
-        pair[nk, 2] = max(su, 1e-12)
-        pair[nk, 3] = gain if (opt and intensified) else 0.0
-        pair[nk, 4] = c_splash if opt else 1.0
-        # given detection, u / p_det is uniform on [0, 1) and independent of the spot's other draws
-        pair[nk, 5] = u_detect[c] / max(th[0], 1e-300)
-        pair[nk, 6] = ax
-        pair[nk, 7] = ay
-        nk += 1
+    for part in range(2):  # the optical candidates, then the cosmic rays (one theory table each)
+        th = th_opt if part == 0 else th_cos
+        opt = part == 0
+        for r in range(th.shape[0]):
+            t = r if opt else m_opt + r
+            i = kept[t]
+            c = c_id[i]
+            if not u_detect[c] < th[r, 0]:
+                continue
+            x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
+            var_b = var_k[t]
+            if ln > 1e-9:
+                ax = dx / max(ln, 1e-12)
+                ay = dy / max(ln, 1e-12)
+            else:
+                ax = 1.0
+                ay = 0.0
+            e_al = z_spot[c, 0] * math.sqrt(th[r, 7])
+            e_cr = z_spot[c, 1] * math.sqrt(th[r, 8])
+            rows[nk] = i
+            out[nk, 0] = x
+            out[nk, 1] = y
+            out[nk, 2] = x + (ax * e_al + (-ay) * e_cr)
+            out[nk, 3] = y + (ay * e_al + ax * e_cr)
+            out[nk, 4] = max(th[r, 9] + z_spot[c, 2] * math.sqrt(th[r, 10]), 1e-3)
+            out[nk, 5] = th[r, 12]
+            out[nk, 6] = th[r, 11]
+            out[nk, 7] = var_b
+            se2 = se2_optical if opt else se2_cosmic
+            reach[nk] = math.sqrt(2.0 * se2 * math.log(max(6.0 * th[r, 12] / thr_k[t], 1.0))) + 0.5 * ln
+            pair[nk, 0] = se2
+            pair[nk, 1] = 0.5 * ln
+            pair[nk, 2] = max(su, 1e-12)
+            pair[nk, 3] = gain if (opt and intensified) else 0.0
+            pair[nk, 4] = c_splash if opt else 1.0
+            # given detection, u / p_det is uniform on [0, 1) and independent of the spot's other draws
+            pair[nk, 5] = u_detect[c] / max(th[r, 0], 1e-300)
+            pair[nk, 6] = ax
+            pair[nk, 7] = ay
+            nk += 1
     return rows[:nk], out[:nk], reach[:nk], pair[:nk]
 
 

@@ -164,6 +164,23 @@ def test_sweep_pairs_leave_the_same_set_as_the_kdtree(seed):
     assert kept(sweep) == kept(ref)
 
 
+def test_order_decreasing_is_numpys_stable_argsort_of_the_negated_keys():
+    """The radix order of the centroid kernels equals numpy's stable argsort of -key: spread and clustered keys,
+    exact ties, keys a few ulps apart (equal upper 32 bits), negative and infinite ones, few keys (the insertion
+    sort up to 64), tiny and empty inputs."""
+    from startracker.kernels.centroid import order_decreasing
+
+    rng = np.random.default_rng(7)
+    near = 1.0 + rng.integers(0, 40, 1000) * np.finfo(float).eps  # one upper half, many lower halves, ties
+    cases = [rng.normal(size=1000), 10 ** rng.uniform(-3, 5, 900), np.round(rng.normal(size=1000), 1) + 0.0,
+             np.repeat(rng.random(50), 20), near, np.concatenate([near, -near, near * 3.0]),
+             np.array([0.0, 1.0, -1.0, 1e-300, -1e-300, np.inf, -np.inf, 5e-324]), np.zeros(5), np.ones(1),
+             rng.normal(size=40), np.repeat(rng.normal(size=8), 8), near[:64], 10 ** rng.uniform(-3, 5, 65),
+             np.zeros(0)]
+    for key in cases:
+        np.testing.assert_array_equal(order_decreasing(key), np.argsort(-key, kind="stable"))
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_saddle_search_finds_the_exhaustive_least_point(seed):
     """The bounded bisection of the near-overlap model returns the first least of the 33 summed profile values,
@@ -183,6 +200,10 @@ def test_saddle_search_finds_the_exhaustive_least_point(seed):
         ti, tj = profile_terms(se2[0], half[0]), profile_terms(se2[1], half[1])
         v = [profile_at(d * k / 32.0, peak[0], half[0], ti) + profile_at(d - d * k / 32.0, peak[1], half[1], tj)
              for k in range(33)]
+        a[:], b[:] = np.nan, np.nan  # the search reads the caller's first three points only
+        for k in (0, 16, 32):
+            a[k] = profile_at(d * k / 32.0, peak[0], half[0], ti)
+            b[k] = profile_at(d - d * k / 32.0, peak[1], half[1], tj)
         k = saddle_search(d, peak[0], half[0], ti, peak[1], half[1], tj, a, b, lows)
         assert k == int(np.argmin(v)), (k, int(np.argmin(v)))
         assert a[k] + b[k] == v[k]

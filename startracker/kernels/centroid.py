@@ -47,74 +47,7 @@ def _ndtr(x):
     return 0.5 * math.erfc(-x / math.sqrt(2.0))
 
 
-@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, peak_f, photon_f, bg_f, lock_f,
-            min_log_ratio, intensified):
-    """One spot of :func:`spot_theory`: the 13 values of ``THEORY_COLUMNS``."""
-    se2 = sigma * sigma + 1.0 / 12.0
-    return _theory_se(s_units, gain, f2, se2, math.sqrt(se2), sigma_o, c_splash, length, var_b, math.sqrt(var_b), thr_e,
-                      peak_f, photon_f, bg_f, lock_f, min_log_ratio, intensified)
-
-
-@njit(cache=True, no_cfunc_wrapper=True)
-def _theory_se(s_units, gain, f2, se2, se, sigma_o, c_splash, length, var_b, sd_b, thr_e, peak_f, photon_f, bg_f, lock_f,
-               min_log_ratio, intensified):
-    """:func:`_theory` given ``se2 = σ² + 1/12``, ``se = √se2`` and ``sd_b = √var_b`` (constant over a frame's spots
-    of one kind on a flat background: computed once there)."""
-    if length > 1e-6:
-        lpos = max(length, 1e-9)
-        phi = (_SQRT_2PI * se / lpos) * math.erf(lpos / (2.0 * math.sqrt(2.0) * se))
-    else:
-        phi = 1.0
-    total_e = gain * s_units
-    peak = total_e * phi / (2.0 * math.pi * se2)
-    s_safe = max(s_units, 1e-12)
-    if intensified:
-        var_peak = peak * peak * f2 / s_safe + gain * f2 * c_splash * peak + var_b
-    else:
-        var_peak = gain * f2 * peak + var_b
-    # the brightest pixel near the centre beats the mean peak by photon clumping: the boost fades as the
-    # background's share of the peak's variance grows (stray light)
-    cp = peak * (1.0 + (peak_f - 1.0) * (var_peak - var_b) / var_peak)
-    p_det = _ndtr((cp - thr_e) / math.sqrt(var_peak))
-    # a barely detected spot is an upward fluctuation that keeps its few brightest pixels: floor on a
-    a = max(math.log(max(cp / max(thr_e, 1e-12), 1e-300)), min_log_ratio)
-    r2 = 2.0 * se2 * a
-    r = math.sqrt(r2)
-    exp_a = math.exp(-a)
-    frac = max(1.0 - exp_a, 1e-6)
-    m2 = se2 * (1.0 - a * exp_a / frac)
-    len2 = length * length
-    len3 = len2 * length
-    l2 = len2 / 12.0
-    if intensified:
-        ph_cross = f2 * (sigma_o * sigma_o + c_splash * m2 / frac) / s_safe
-        ph_along = f2 * (sigma_o * sigma_o + l2 + c_splash * (m2 + l2) / frac) / s_safe
-    else:
-        ph_cross = f2 * m2 / (s_safe * frac)
-        ph_along = f2 * (m2 + l2) / (s_safe * frac)
-    cap = total_e * frac
-    disc = math.pi * r2 * r2 / 4.0
-    cap2 = max(cap, 1e-12) ** 2
-    a_cross = disc + (2.0 * r) ** 3 * length / 12.0
-    a_along = disc + 2.0 * r * len3 / 12.0 + math.pi * r2 * len2 / 4.0
-    # support noise: pixels near the threshold join or leave the component at random, each carrying about T
-    edge_k = _INV_SQRT_PI * thr_e * sd_b * se2 / max(r, 1e-6) / cap2
-    side = 2.0 * length * r2
-    ring = math.pi * r2 * r
-    bg_cross = var_b * a_cross / cap2 + edge_k * (side + ring)
-    bg_along = var_b * a_along / cap2 + edge_k * (len3 / 6.0 + math.pi * r * len2 / 2.0 + ring + side)
-    lock_cross = (1.0 - m2 / se2) ** 2 / 12.0
-    lock_along = (1.0 - (m2 + l2) / (se2 + l2)) ** 2 / 12.0
-    var_cross = photon_f * ph_cross + bg_f * bg_cross + lock_f * lock_cross
-    var_along = photon_f * ph_along + bg_f * bg_along + lock_f * lock_along
-    area = max(math.pi * r2 + 2.0 * r * length, 1.0)
-    var_cap = gain * gain * f2 * s_units * frac + var_b * area
-    return (p_det, ph_along, ph_cross, bg_along, bg_cross, lock_along, lock_cross, var_along, var_cross, cap, var_cap,
-            area, peak)
-
-
-@njit(cache=True, no_cfunc_wrapper=True)
+@njit(cache=True, no_cfunc_wrapper=True, error_model="numpy")
 def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_e, factors, intensified):
     """Closed-form statistics of a thresholded centre of mass, spot by spot.
 
@@ -162,12 +95,86 @@ def spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr_
     """
     n = s_units.shape[0]
     out = np.empty((n, 13))
-    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
+    peak_f, photon_f, bg_f, lock_f, min_log_ratio = factors[0], factors[1], factors[2], factors[3], factors[4]
+    se2 = sigma * sigma + 1.0 / 12.0
+    se = math.sqrt(se2)
+    # In stages over all spots: the arithmetic between the library calls (erf, erfc, log, exp) then runs as vector
+    # loops (error_model="numpy": no zero-division branch; the same IEEE operations, so the same bits). The log and
+    # exp share the erfc's loop, which keeps them scalar libm calls even where numba has a vector math library.
+    phi = np.empty(n)
     for i in range(n):
-        v = _theory(s_units[i], gain, f2, sigma, sigma_o, c_splash, length[i], var_b[i], thr_e[i], pf, hf, bf, lf, ml,
-                    intensified)
-        for j in range(13):
-            out[i, j] = v[j]
+        if length[i] > 1e-6:
+            lpos = max(length[i], 1e-9)
+            phi[i] = (_SQRT_2PI * se / lpos) * math.erf(lpos / (2.0 * math.sqrt(2.0) * se))
+        else:
+            phi[i] = 1.0
+    z = np.empty(n)
+    a_ln = np.empty(n)  # cp / T, then a
+    for i in range(n):
+        total_e = gain * s_units[i]
+        peak = total_e * phi[i] / (2.0 * math.pi * se2)
+        s_safe = max(s_units[i], 1e-12)
+        var_b_i = var_b[i]
+        if intensified:
+            var_peak = peak * peak * f2 / s_safe + gain * f2 * c_splash * peak + var_b_i
+        else:
+            var_peak = gain * f2 * peak + var_b_i
+        # the brightest pixel near the centre beats the mean peak by photon clumping: the boost fades as the
+        # background's share of the peak's variance grows (stray light)
+        cp = peak * (1.0 + (peak_f - 1.0) * (var_peak - var_b_i) / var_peak)
+        z[i] = (cp - thr_e[i]) / math.sqrt(var_peak)
+        a_ln[i] = max(cp / max(thr_e[i], 1e-12), 1e-300)
+        out[i, 12] = peak
+    exp_a = np.empty(n)
+    for i in range(n):
+        out[i, 0] = _ndtr(z[i])
+        # a barely detected spot is an upward fluctuation that keeps its few brightest pixels: floor on a
+        a = max(math.log(a_ln[i]), min_log_ratio)
+        a_ln[i] = a
+        exp_a[i] = math.exp(-a)
+    for i in range(n):
+        a = a_ln[i]
+        length_i = length[i]
+        var_b_i = var_b[i]
+        r2 = 2.0 * se2 * a
+        r = math.sqrt(r2)
+        frac = max(1.0 - exp_a[i], 1e-6)
+        m2 = se2 * (1.0 - a * exp_a[i] / frac)
+        len2 = length_i * length_i
+        len3 = len2 * length_i
+        l2 = len2 / 12.0
+        s_safe = max(s_units[i], 1e-12)
+        if intensified:
+            ph_cross = f2 * (sigma_o * sigma_o + c_splash * m2 / frac) / s_safe
+            ph_along = f2 * (sigma_o * sigma_o + l2 + c_splash * (m2 + l2) / frac) / s_safe
+        else:
+            ph_cross = f2 * m2 / (s_safe * frac)
+            ph_along = f2 * (m2 + l2) / (s_safe * frac)
+        cap = gain * s_units[i] * frac
+        disc = math.pi * r2 * r2 / 4.0
+        cap2 = max(cap, 1e-12) ** 2
+        a_cross = disc + (2.0 * r) ** 3 * length_i / 12.0
+        a_along = disc + 2.0 * r * len3 / 12.0 + math.pi * r2 * len2 / 4.0
+        # support noise: pixels near the threshold join or leave the component at random, each carrying about T
+        edge_k = _INV_SQRT_PI * thr_e[i] * math.sqrt(var_b_i) * se2 / max(r, 1e-6) / cap2
+        side = 2.0 * length_i * r2
+        ring = math.pi * r2 * r
+        bg_cross = var_b_i * a_cross / cap2 + edge_k * (side + ring)
+        bg_along = var_b_i * a_along / cap2 + edge_k * (len3 / 6.0 + math.pi * r * len2 / 2.0 + ring + side)
+        lock_cross = (1.0 - m2 / se2) ** 2 / 12.0
+        lock_along = (1.0 - (m2 + l2) / (se2 + l2)) ** 2 / 12.0
+        area = max(math.pi * r2 + 2.0 * r * length_i, 1.0)
+        out[i, 1] = ph_along
+        out[i, 2] = ph_cross
+        out[i, 3] = bg_along
+        out[i, 4] = bg_cross
+        out[i, 5] = lock_along
+        out[i, 6] = lock_cross
+        out[i, 7] = photon_f * ph_along + bg_f * bg_along + lock_f * lock_along
+        out[i, 8] = photon_f * ph_cross + bg_f * bg_cross + lock_f * lock_cross
+        out[i, 9] = cap
+        out[i, 10] = gain * gain * f2 * s_units[i] * frac + var_b_i * area
+        out[i, 11] = area
     return out
 
 
@@ -348,7 +355,8 @@ def _candidates(xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, deb
 def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma):
     """Theory, detection and measurement of the candidates: the detected rows (D,), and per detection (D, 8) =
     truth x, y, measured x, y, charge (e⁻), expected peak (e⁻), area (px), background variance (e⁻²), the
-    reach (D,) (expected threshold radius without the peak factor, plus half the streak), and what the
+    reach (D,) (px: where the expected profile falls to a sixth of the threshold, plus half the streak; two spots
+    farther apart than the sum of theirs never join), and what the
     near-overlap model of :func:`_touching` needs (D, 8): PSF variance (px²), half streak (px), signal units,
     intensifier gain (0: not intensified), splash energy, the detection draw scaled to U(0, 1), and the streak's
     unit direction (x, y)."""
@@ -357,81 +365,98 @@ def _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors,
     g_dn = sensor[10]
     cosmic_sigma = sensor[11]
     saturation_dn, bias_dn = sensor[6], sensor[7]
-    pf, hf, bf, lf, ml = factors[0], factors[1], factors[2], factors[3], factors[4]
     opt0, gx, gy, cx, cy = background[0], background[1], background[2], background[3], background[4]
     dark, gain_bg, enf2c, read_var, prnu = background[5], background[6], background[7], background[8], background[9]
     se2_optical = sigma * sigma + 1.0 / 12.0
     se2_cosmic = cosmic_sigma * cosmic_sigma + 1.0 / 12.0
-    se_optical = math.sqrt(se2_optical)
-    se_cosmic = math.sqrt(se2_cosmic)
     g_dn2 = g_dn * g_dn
     n_in = c_id.shape[0]
-    rows = np.empty(n_in, dtype=np.int64)
-    out = np.empty((n_in, 8))
-    reach = np.empty(n_in)
-    # se2, half streak, signal units, gain, splash, the detection draw scaled to U(0, 1), streak direction x, y
-    pair = np.empty((n_in, 8))
+    # the candidates that can be detected at their background: row, signal, length, background variance, threshold
+    kept = np.empty(n_in, dtype=np.int64)
+    su_k = np.empty(n_in)
+    ln_k = np.empty(n_in)
+    var_k = np.empty(n_in)
+    thr_k = np.empty(n_in)
     # a flat background (no gradient: no bright body) has one level, threshold and verdict for every spot
     flat = gx == 0.0 and gy == 0.0
-    q = var_b = sd_b = thr_e = 0.0
+    q = var_b = thr_e = 0.0
     washed_out = False
     if flat:
         q = gain_bg * max(opt0 + gx * (cx - cx) + gy * (cy - cy), 0.0)
         var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
-        sd_b = math.sqrt(var_b)
-        thr_e = k_sigma * sd_b
+        thr_e = k_sigma * math.sqrt(var_b)
         washed_out = math.floor((q + dark + thr_e) / g_dn + bias_dn) + 1.0 > saturation_dn
-    nk = 0
+    m = 0
+    m_opt = 0
     for i in range(n_in):
-        x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
         if flat:
             if washed_out:
-                continue
+                break
         else:
-            q = gain_bg * max(opt0 + gx * (x - cx) + gy * (y - cy), 0.0)
+            q = gain_bg * max(opt0 + gx * (c_g[i, 0] - cx) + gy * (c_g[i, 1] - cy), 0.0)
             var_b = ((enf2c * q + dark + read_var + (prnu * q) ** 2) / g_dn2 + 1.0 / 12.0) * g_dn2
-            sd_b = math.sqrt(var_b)
-            thr_e = k_sigma * sd_b
+            thr_e = k_sigma * math.sqrt(var_b)
             # a pixel is detected when its DN exceeds the threshold, and no pixel reads above saturation: where the
             # background's threshold is at or above it (stray light washing the detector out) nothing is detected
             if math.floor((q + dark + thr_e) / g_dn + bias_dn) + 1.0 > saturation_dn:
                 continue
-        opt = i < n_optical
-        th = _theory_se(su, gain if opt else 1.0, f2 if opt else 1.0, se2_optical if opt else se2_cosmic,
-                        se_optical if opt else se_cosmic, sigma_o if opt else cosmic_sigma, c_splash if opt else 1.0,
-                        ln, var_b, sd_b, thr_e, pf, hf, bf, lf, ml, intensified and opt)
-        c = c_id[i]
-        if not u_detect[c] < th[0]:
-            continue
-        if ln > 1e-9:
-            ax = dx / max(ln, 1e-12)
-            ay = dy / max(ln, 1e-12)
-        else:
-            ax = 1.0
-            ay = 0.0
-        e_al = z_spot[c, 0] * math.sqrt(th[7])
-        e_cr = z_spot[c, 1] * math.sqrt(th[8])
-        rows[nk] = i
-        out[nk, 0] = x
-        out[nk, 1] = y
-        out[nk, 2] = x + (ax * e_al + (-ay) * e_cr)
-        out[nk, 3] = y + (ay * e_al + ax * e_cr)
-        out[nk, 4] = max(th[9] + z_spot[c, 2] * math.sqrt(th[10]), 1e-3)
-        out[nk, 5] = th[12]
-        out[nk, 6] = th[11]
-        out[nk, 7] = var_b
-        se2 = se2_optical if opt else se2_cosmic
-        reach[nk] = math.sqrt(2.0 * se2 * math.log(max(th[12] / thr_e, 1.0))) + 0.5 * ln
-        pair[nk, 0] = se2
-        pair[nk, 1] = 0.5 * ln
-        pair[nk, 2] = max(su, 1e-12)
-        pair[nk, 3] = gain if (opt and intensified) else 0.0
-        pair[nk, 4] = c_splash if opt else 1.0
-        # given detection, u / p_det is uniform on [0, 1) and independent of the spot's other draws
-        pair[nk, 5] = u_detect[c] / max(th[0], 1e-300)
-        pair[nk, 6] = ax
-        pair[nk, 7] = ay
-        nk += 1
+        kept[m] = i
+        su_k[m] = c_g[i, 5]
+        ln_k[m] = c_g[i, 4]
+        var_k[m] = var_b
+        thr_k[m] = thr_e
+        m += 1
+        m_opt += 1 if i < n_optical else 0
+    th_opt = spot_theory(su_k[:m_opt], gain, f2, sigma, sigma_o, c_splash, ln_k[:m_opt], var_k[:m_opt], thr_k[:m_opt],
+                         factors, intensified)
+    th_cos = spot_theory(su_k[m_opt:m], 1.0, 1.0, cosmic_sigma, cosmic_sigma, 1.0, ln_k[m_opt:m], var_k[m_opt:m],
+                         thr_k[m_opt:m], factors, np.bool_(False))
+    rows = np.empty(m, dtype=np.int64)
+    out = np.empty((m, 8))
+    reach = np.empty(m)
+    # se2, half streak, signal units, gain, splash, the detection draw scaled to U(0, 1), streak direction x, y
+    pair = np.empty((m, 8))
+    nk = 0
+    for part in range(2):  # the optical candidates, then the cosmic rays (one theory table each)
+        th = th_opt if part == 0 else th_cos
+        opt = part == 0
+        for r in range(th.shape[0]):
+            t = r if opt else m_opt + r
+            i = kept[t]
+            c = c_id[i]
+            if not u_detect[c] < th[r, 0]:
+                continue
+            x, y, dx, dy, ln, su = c_g[i, 0], c_g[i, 1], c_g[i, 2], c_g[i, 3], c_g[i, 4], c_g[i, 5]
+            var_b = var_k[t]
+            if ln > 1e-9:
+                ax = dx / max(ln, 1e-12)
+                ay = dy / max(ln, 1e-12)
+            else:
+                ax = 1.0
+                ay = 0.0
+            e_al = z_spot[c, 0] * math.sqrt(th[r, 7])
+            e_cr = z_spot[c, 1] * math.sqrt(th[r, 8])
+            rows[nk] = i
+            out[nk, 0] = x
+            out[nk, 1] = y
+            out[nk, 2] = x + (ax * e_al + (-ay) * e_cr)
+            out[nk, 3] = y + (ay * e_al + ax * e_cr)
+            out[nk, 4] = max(th[r, 9] + z_spot[c, 2] * math.sqrt(th[r, 10]), 1e-3)
+            out[nk, 5] = th[r, 12]
+            out[nk, 6] = th[r, 11]
+            out[nk, 7] = var_b
+            se2 = se2_optical if opt else se2_cosmic
+            reach[nk] = math.sqrt(2.0 * se2 * math.log(max(6.0 * th[r, 12] / thr_k[t], 1.0))) + 0.5 * ln
+            pair[nk, 0] = se2
+            pair[nk, 1] = 0.5 * ln
+            pair[nk, 2] = max(su, 1e-12)
+            pair[nk, 3] = gain if (opt and intensified) else 0.0
+            pair[nk, 4] = c_splash if opt else 1.0
+            # given detection, u / p_det is uniform on [0, 1) and independent of the spot's other draws
+            pair[nk, 5] = u_detect[c] / max(th[r, 0], 1e-300)
+            pair[nk, 6] = ax
+            pair[nk, 7] = ay
+            nk += 1
     return rows[:nk], out[:nk], reach[:nk], pair[:nk]
 
 
@@ -476,6 +501,8 @@ def saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, low
     j's at the left one. A span whose bound exceeds the least value found by a margin (10⁻⁹ of the summed peaks,
     far above the profiles' rounding: erf to an ulp over ``den >= 2 erf(10⁻³ / √2)``) holds neither a smaller
     value nor an equal one, so the index is the exhaustive search's, bit for bit, at about half the evaluations.
+    The caller evaluates the ends and the midpoint (k = 0, 16, 32) first: its own bounds on the saddle may
+    settle the question without the search (:func:`_touching`).
 
     Parameters
     ----------
@@ -488,8 +515,8 @@ def saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, low
     terms_i, terms_j : tuple
         :func:`profile_terms` of the two spots.
     a, b : ndarray, shape (33,)
-        Scratch; on return ``a[k]``, ``b[k]`` hold the two profiles at the index found (and at the other
-        evaluated points).
+        On entry ``a[k]``, ``b[k]`` for k = 0, 16, 32 hold the profiles there, the rest is scratch; on return
+        they hold the two profiles at the index found (and at the other evaluated points).
     lows : ndarray of int64, shape (24,)
         Scratch: the spans' left ends.
 
@@ -498,10 +525,6 @@ def saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, low
     int
         The index k in [0, 32].
     """
-    for k in (0, 16, 32):
-        s = d * k / 32.0
-        a[k] = profile_at(s, peak_i, half_i, terms_i)
-        b[k] = profile_at(d - s, peak_j, half_j, terms_j)
     best_k = 0
     best = a[0] + b[0]
     for k in (16, 32):
@@ -578,7 +601,8 @@ def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b,
     f2 : float
         Excess noise factor squared.
     terms_i, terms_j, a, b, lows
-        :func:`profile_terms` of the two spots and :func:`saddle_search`'s scratch.
+        :func:`profile_terms` of the two spots and :func:`saddle_search`'s arrays (``a``, ``b`` with the profiles
+        at k = 0, 16, 32).
     """
     k = saddle_search(d, peak_i, half_i, terms_i, peak_j, half_j, terms_j, a, b, lows)
     best = a[k] + b[k]
@@ -590,73 +614,116 @@ def _merge_probability(d, peak_i, peak_j, pair_i, pair_j, half_i, half_j, var_b,
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _touching(det, reach, pair, k_sigma, f2):
+def _touching(det, far, pair, k_sigma, f2):
     """Union-find labels (K,) (the smallest member of each group) of the spots that join into one component, and
     whether each touches another. Two spots join with :func:`_merge_probability` (the saddle of their summed
     profiles above the threshold), decided by the pair's draw ``frac(u_i + u_j)`` (uniform, and independent of each
-    spot's own draws and of the pair's other pairs). Each spot is compared with those after it in its column and
-    the next (columns as wide as the largest distance at which a pair can join)."""
-    n = reach.shape[0]
+    spot's own draws and of the pair's other pairs), and never farther apart than the sum of their reaches
+    ``far`` (D,) (:func:`_detect`). Each spot is compared with those near it in y in its column
+    and the next (columns as wide as the largest distance at which a pair can join), the pair oriented as its
+    column order has it (the lower column first, then the smaller index): the labels do not depend on the order
+    in which pairs join (a group's root is always its smallest member)."""
+    n = far.shape[0]
     parent = np.empty(n, dtype=np.int64)
     touched = np.zeros(n, dtype=np.bool_)
     x = np.empty(n)
-    far = np.empty(n)  # where a spot's expected profile falls to a sixth of the threshold
     far_max = 0.0
     for i in range(n):
         parent[i] = i
         x[i] = det[i, 0]
-        thr = k_sigma * math.sqrt(det[i, 7])
-        far[i] = math.sqrt(2.0 * pair[i, 0] * math.log(max(6.0 * det[i, 5] / thr, 1.0))) + pair[i, 1]
-        far_max = max(far_max, far[i], reach[i])
+        far_max = max(far_max, far[i])
     if n < 2:
         return parent, touched
     col, order, start = _columns(x, 2.0 * far_max)
+    # each column by increasing y (insertion sort: a column holds a few spots), so that a spot meets only the
+    # spots within the joining distance in y, plus a margin far above the rounding of the distance test
+    n_col = start.shape[0] - 2
+    for c in range(n_col):
+        for a in range(start[c] + 1, start[c + 1]):
+            i = order[a]
+            b = a
+            while b > start[c] and det[order[b - 1], 1] > det[i, 1]:
+                order[b] = order[b - 1]
+                b -= 1
+            order[b] = i
     a_s = np.empty(33)  # scratch of the saddle search
     b_s = np.empty(33)
     lows = np.empty(24, dtype=np.int64)
-    for a in range(n):
-        i = order[a]
-        stop = start[col[i] + 2]  # the end of the next column
-        for b in range(a + 1, stop):
-            j = order[b]
-            ddx = det[j, 0] - det[i, 0]
-            ddy = det[j, 1] - det[i, 1]
-            d2 = ddx * ddx + ddy * ddy
-            if not d2 < (far[i] + far[j]) ** 2:
-                continue
-            d = math.sqrt(d2)
-            if d > 1e-9:
-                ux, uy = ddx / d, ddy / d
-            else:
-                ux, uy = 1.0, 0.0
-            half_i = pair[i, 1] * abs(pair[i, 6] * ux + pair[i, 7] * uy)
-            half_j = pair[j, 1] * abs(pair[j, 6] * ux + pair[j, 7] * uy)
-            var_b = 0.5 * (det[i, 7] + det[j, 7])
-            thr_e = k_sigma * math.sqrt(var_b)
-            u = pair[i, 5] + pair[j, 5]
-            u = u - math.floor(u)
-            # Exact shortcut for the many pairs that cannot join: the saddle is at most the summed profile at the
-            # midpoint (one of saddle_search's 33 points); below the threshold, its z-score is at most that
-            # value's with the largest signal variance (profiles never exceed their peaks), and the join
-            # probability at most the one of that bound. A draw above the bound decides "apart" without the search.
-            p_i, p_j = det[i, 5], det[j, 5]
-            ti = profile_terms(pair[i, 0], half_i)
-            tj = profile_terms(pair[j, 0], half_j)
-            s_mid = profile_at(0.5 * d, p_i, half_i, ti) + profile_at(0.5 * d, p_j, half_j, tj)
-            if s_mid < thr_e:
-                var_max = var_b + _signal_variance(p_i, pair[i], f2) + _signal_variance(p_j, pair[j], f2)
-                miss = 1.0 - _ndtr((s_mid - thr_e) / math.sqrt(var_max))
-                if u >= 1.0 - miss * miss:
-                    continue
-            p = _merge_probability(d, p_i, p_j, pair[i], pair[j], half_i, half_j, var_b, thr_e, f2, ti, tj, a_s, b_s,
-                                   lows)
-            if u < p:
-                touched[i] = True
-                touched[j] = True
-                ri = _find(parent, i)
-                rj = _find(parent, j)
-                if ri != rj:
-                    parent[max(ri, rj)] = min(ri, rj)
+    dy_max = 2.0 * far_max + 1e-6
+    for c in range(n_col):
+        lo = start[c + 1]  # the first spot of the next column not far below the current spot
+        for a in range(start[c], start[c + 1]):
+            ii = order[a]
+            y_i = det[ii, 1]
+            dy_i = far[ii] + far_max + 1e-6
+            while lo < start[c + 2] and det[order[lo], 1] < y_i - dy_max:
+                lo += 1
+            for side in range(2):  # the spots after it in its column, then those of the next column
+                for b in range(a + 1 if side == 0 else lo, start[c + 1 + side]):
+                    jj = order[b]
+                    if det[jj, 1] - y_i >= dy_i:
+                        break
+                    i = min(ii, jj) if side == 0 else ii
+                    j = max(ii, jj) if side == 0 else jj
+                    ddx = det[j, 0] - det[i, 0]
+                    ddy = det[j, 1] - det[i, 1]
+                    d2 = ddx * ddx + ddy * ddy
+                    if not d2 < (far[i] + far[j]) ** 2:
+                        continue
+                    d = math.sqrt(d2)
+                    if d > 1e-9:
+                        ux, uy = ddx / d, ddy / d
+                    else:
+                        ux, uy = 1.0, 0.0
+                    half_i = pair[i, 1] * abs(pair[i, 6] * ux + pair[i, 7] * uy)
+                    half_j = pair[j, 1] * abs(pair[j, 6] * ux + pair[j, 7] * uy)
+                    var_b = 0.5 * (det[i, 7] + det[j, 7])
+                    thr_e = k_sigma * math.sqrt(var_b)
+                    u = pair[i, 5] + pair[j, 5]
+                    u = u - math.floor(u)
+                    # Exact shortcut for the many pairs that cannot join: the saddle S is at most the summed
+                    # profile at the midpoint (one of saddle_search's 33 points); below the threshold, its z-score
+                    # is at most that value's with the largest signal variance there (the two profiles at the
+                    # saddle are >= 0 and sum to S, so neither exceeds the midpoint's sum), and the join
+                    # probability at most the one of that bound. A draw above the bound (by a margin far above its
+                    # rounding) decides "apart" without the search.
+                    p_i, p_j = det[i, 5], det[j, 5]
+                    ti = profile_terms(pair[i, 0], half_i)
+                    tj = profile_terms(pair[j, 0], half_j)
+                    a_s[16] = profile_at(0.5 * d, p_i, half_i, ti)  # saddle_search's k = 16: s = d - s = d / 2
+                    b_s[16] = profile_at(0.5 * d, p_j, half_j, tj)
+                    s_mid = a_s[16] + b_s[16]
+                    if s_mid < thr_e:
+                        var_max = (var_b + _signal_variance(s_mid, pair[i], f2)
+                                   + _signal_variance(s_mid, pair[j], f2))
+                        miss = 1.0 - _ndtr((s_mid - thr_e) / math.sqrt(var_max))
+                        if u >= 1.0 - miss * miss + 1e-12:
+                            continue
+                    a_s[0] = profile_at(0.0, p_i, half_i, ti)
+                    b_s[0] = profile_at(d, p_j, half_j, tj)
+                    a_s[32] = profile_at(d, p_i, half_i, ti)
+                    b_s[32] = profile_at(0.0, p_j, half_j, tj)
+                    # Exact shortcut for the pairs that surely join: i's profile falls and j's rises along the
+                    # segment, so the saddle is at least the least of the two halves' bounds (saddle_search's, with
+                    # its margin); the join probability is at least the one of that bound, with the signal
+                    # variance at its largest above the threshold (the peaks') or its least below (none).
+                    s_low = min(a_s[16] + b_s[0], a_s[32] + b_s[16]) - 1e-9 * (p_i + p_j)
+                    var_s = var_b
+                    if s_low >= thr_e:
+                        var_s = var_b + _signal_variance(p_i, pair[i], f2) + _signal_variance(p_j, pair[j], f2)
+                    miss = 1.0 - _ndtr((s_low - thr_e) / math.sqrt(var_s))
+                    if u < 1.0 - miss * miss - 1e-12:
+                        p = 1.0
+                    else:
+                        p = _merge_probability(d, p_i, p_j, pair[i], pair[j], half_i, half_j, var_b, thr_e, f2, ti,
+                                               tj, a_s, b_s, lows)
+                    if u < p:
+                        touched[i] = True
+                        touched[j] = True
+                        ri = _find(parent, i)
+                        rj = _find(parent, j)
+                        if ri != rj:
+                            parent[max(ri, rj)] = min(ri, rj)
     for i in range(n):
         parent[i] = _find(parent, i)
     return parent, touched
@@ -665,7 +732,8 @@ def _touching(det, reach, pair, k_sigma, f2):
 @njit(cache=True, no_cfunc_wrapper=True)
 def order_decreasing(key):
     """Stable order of decreasing ``key`` (K,) (float64, C-contiguous, no NaN): a least-significant-digit radix
-    sort on the bits.
+    sort on the upper 32 bits, then an insertion sort on the lower 32 within each run of equal upper halves
+    (rare and short: keys that close are equal or a few ulps apart); up to 64 keys, an insertion sort.
 
     Returns
     -------
@@ -680,17 +748,20 @@ def order_decreasing(key):
         b = bits[i]
         # increasing ukey = decreasing key: non-negative keys in reverse order first, then negative ones
         ukey[i] = b if b & sign else ~b & ~sign
-    hist = np.zeros((8, 256), dtype=np.int64)
-    for i in range(n):
-        u = ukey[i]
-        for p in range(8):
-            hist[p, (u >> np.uint64(8 * p)) & np.uint64(255)] += 1
     idx = np.empty(n, dtype=np.int64)
     for i in range(n):
         idx[i] = i
+    if n <= 64:  # a few keys (a still frame's): an insertion sort beats the radix passes' fixed cost
+        _insertion(idx, ukey, np.uint64(0))
+        return idx
+    hist = np.zeros((4, 256), dtype=np.int64)
+    for i in range(n):
+        u = ukey[i] >> np.uint64(32)
+        for p in range(4):
+            hist[p, (u >> np.uint64(8 * p)) & np.uint64(255)] += 1
     tmp = np.empty(n, dtype=np.int64)
     pos = np.empty(256, dtype=np.int64)
-    for p in range(8):
+    for p in range(4):
         same = False
         for d in range(256):
             same = same or hist[p, d] == n
@@ -700,23 +771,38 @@ def order_decreasing(key):
         for d in range(256):
             pos[d] = acc
             acc += hist[p, d]
-        shift = np.uint64(8 * p)
+        shift = np.uint64(32 + 8 * p)
         for t in range(n):
             i = idx[t]
             d = (ukey[i] >> shift) & np.uint64(255)
             tmp[pos[d]] = i
             pos[d] += 1
         idx, tmp = tmp, idx
+    _insertion(idx, ukey, ~np.uint64(0xFFFFFFFF))
     return idx
 
 
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _assemble(det, reach, pair, src, rows, n_star, n_optical, kinds, sensor, background, k_sigma, n_extra):
+def _insertion(idx, ukey, upper):
+    """Stable insertion sort of ``idx`` by increasing ``ukey[idx]`` within its runs of equal ``ukey & upper``
+    (``upper = 0``: the whole array); only a strictly larger key moves past, so equal keys keep their order."""
+    for t in range(1, idx.shape[0]):
+        i = idx[t]
+        u = ukey[i]
+        s = t
+        while s > 0 and ukey[idx[s - 1]] & upper == u & upper and ukey[idx[s - 1]] > u:
+            idx[s] = idx[s - 1]
+            s -= 1
+        idx[s] = i
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _assemble(det, far, pair, src, rows, n_star, n_optical, kinds, sensor, background, k_sigma, n_extra):
     """Merge the touching detections and finish them (DN, area, saturation, SNR): the columns of the result,
     with room for ``n_extra`` single-pixel detections after them; returns the arrays and the count."""
     g_dn, bias_dn, saturation_dn = sensor[10], sensor[7], sensor[6]
-    parent, touched = _touching(det, reach, pair, k_sigma, sensor[1])
-    nk = reach.shape[0]
+    parent, touched = _touching(det, far, pair, k_sigma, sensor[1])
+    nk = far.shape[0]
     cap = nk + n_extra
     f = np.empty((cap, 8))  # xy, truth xy, intensity, peak, snr, background variance / area scratch
     lab = np.empty((cap, 3), dtype=np.int64)  # star, exposure, kind
@@ -926,8 +1012,8 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
     c_id, c_g, c_src, n_optical, n_star = _candidates(
         xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s, t_end_rel_s,
         cosmic_start_xy, cosmic_end_xy, cosmic_e, n_cols, n_rows)
-    rows, det, reach, pair = _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma)
-    f, lab, area, sat, q = _assemble(det, reach, pair, c_src, rows, n_star, n_optical, kinds, sensor, background,
+    rows, det, far, pair = _detect(c_id, c_g, n_optical, u_detect, z_spot, background, sensor, factors, k_sigma)
+    f, lab, area, sat, q = _assemble(det, far, pair, c_src, rows, n_star, n_optical, kinds, sensor, background,
                                      k_sigma,
                                      hot_index.shape[0] + noise_index.shape[0])
     q = _single_pixels(f, lab, area, sat, q, hot_index, hot_dark_e_per_s, z_hot, noise_index, noise_dn, background,

@@ -3,9 +3,9 @@
 The checked API and the method's description are in :mod:`startracker.kvector`; this module builds the same table
 in one compiled call for the tracker's per-frame DKVLUT (:mod:`startracker.kernels.track`).
 
-It also holds the compiled kernels' sorting and searching of sorted values (:func:`stable_argsort_into`,
-:func:`sort_values`, :func:`median_value`, :func:`search_sorted`). They stand in for ``np.argsort``, ``np.sort``,
-``np.median`` and ``np.searchsorted`` inside compiled code, with the same results on finite values: numba's own
+It also holds the compiled kernels' sorting, selection and searching of sorted values (:func:`stable_argsort_into`,
+:func:`sort_values`, :func:`partition_values`, :func:`median_value`, :func:`search_sorted`). They stand in for
+``np.argsort``, ``np.sort``, ``np.partition``, ``np.median`` and ``np.searchsorted`` inside compiled code, with the same results on finite values: numba's own
 versions are generic code that takes seconds to compile per element type (about 4 s for ``np.sort``), and every
 kernel that calls them carries that code again into its own compiled module.
 """
@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["kvector_build", "kvector_fill", "stable_argsort", "stable_argsort_into", "sort_values", "median_value",
-           "search_sorted"]
+__all__ = ["kvector_build", "kvector_fill", "stable_argsort", "stable_argsort_into", "sort_values", "partition_values",
+           "median_value", "search_sorted"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -258,16 +258,79 @@ def _sift_down(h, root, n):
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
+def partition_values(a, kth):
+    """``np.partition(a, kth)`` for a 1-d array without NaN: a copy with the ``kth`` smallest value at ``kth``, none
+    larger before it and none smaller after it (Hoare's selection, median-of-three pivots; insertion below 16 values).
+
+    The selected value is the sorted array's (:func:`sort_values`), in O(n) on average instead of a sort's O(n log n)
+    and far fewer unpredictable branches: a frame's quartile or an instant's median needs nothing else.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n,)
+        float64 or int64 values, n >= 1.
+    kth : int
+        0 <= kth < n.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The partitioned copy, same dtype.
+    """
+    s = a.copy()
+    lo, hi = 0, s.shape[0] - 1
+    while hi - lo >= 16:
+        mid = (lo + hi) >> 1
+        # median of three into s[mid]: a pivot that sorted or reversed runs do not make the worst case
+        if s[mid] < s[lo]:
+            s[mid], s[lo] = s[lo], s[mid]
+        if s[hi] < s[mid]:
+            s[mid], s[hi] = s[hi], s[mid]
+            if s[mid] < s[lo]:
+                s[mid], s[lo] = s[lo], s[mid]
+        x = s[mid]
+        i, j = lo, hi
+        while i <= j:
+            while s[i] < x:
+                i += 1
+            while x < s[j]:
+                j -= 1
+            if i <= j:
+                s[i], s[j] = s[j], s[i]
+                i += 1
+                j -= 1
+        # now s[lo:j + 1] <= x <= s[i:hi + 1] and s[j + 1:i] == x
+        if kth <= j:
+            hi = j
+        elif kth >= i:
+            lo = i
+        else:
+            return s
+    for j in range(lo + 1, hi + 1):
+        cur = s[j]
+        i = j - 1
+        while i >= lo and s[i] > cur:
+            s[i + 1] = s[i]
+            i -= 1
+        s[i + 1] = cur
+    return s
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
 def median_value(a):
     """``np.median(a)`` of a 1-d float64 array without NaN (NaN when empty): the middle value, or the mean
-    ``(lo + hi) / 2`` of the two middle values, as numpy computes it."""
+    ``(lo + hi) / 2`` of the two middle values, as numpy computes it (selected by :func:`partition_values`)."""
     n = a.shape[0]
     if n == 0:
         return np.nan
-    s = sort_values(a)
     half = n >> 1
+    s = partition_values(a, half)
     if n & 1 == 0:
-        return (s[half - 1] + s[half]) / 2
+        lo = s[0]  # the largest value before the middle one: the sorted array's s[half - 1]
+        for i in range(1, half):
+            if s[i] > lo:
+                lo = s[i]
+        return (lo + s[half]) / 2
     return s[half]
 
 

@@ -18,7 +18,7 @@ from numba import njit
 from startracker.kernels.algebra import quat_multiply_into, quat_normalize_canonical, quat_to_rotation
 from startracker.kernels.attitude import solve_wahba_one
 from startracker.kernels.catalog import cone_search_angle
-from startracker.kernels.kvector import kvector_fill, median_value, sort_values
+from startracker.kernels.kvector import kvector_fill, median_value, partition_values
 from startracker.kernels.rotations import normalize_rows
 from startracker.kernels.sensor import accept_instants, gather_instants, innovation_chi2_mean, true_indices
 
@@ -578,7 +578,7 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 ratio[j] = obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300)
                 j += 1
         # the scale of one exposure's light: the lower quartile (at low rates joined spots can be most matches)
-        cap = flux_ratio_max * sort_values(ratio)[n_assigned // 4]
+        cap = flux_ratio_max * partition_values(ratio, n_assigned // 4)[n_assigned // 4]
         for q in range(k_n):
             if assign[q] >= 0 and obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300) > cap:
                 assign[q] = -1

@@ -579,9 +579,12 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 j += 1
         # the scale of one exposure's light: the lower quartile (at low rates joined spots can be most matches)
         cap = flux_ratio_max * partition_values(ratio, n_assigned // 4)[n_assigned // 4]
+        j = 0
         for q in range(k_n):
-            if assign[q] >= 0 and obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300) > cap:
-                assign[q] = -1
+            if assign[q] >= 0:
+                if ratio[j] > cap:  # the ratio computed above, in the same detection order
+                    assign[q] = -1
+                j += 1
     counts = np.zeros(n_instants, dtype=np.int64)
     for q in range(k_n):
         if assign[q] >= 0:
@@ -633,13 +636,15 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 if ang[s] > ang[worst]:  # unused pairs hold -1
                     worst = s
             threshold = outlier_threshold_rad
-            if cnt >= ROBUST_MIN_STARS:
+            lower = 0.4 * outlier_threshold_rad
+            if cnt >= ROBUST_MIN_STARS and ang[worst] > lower and not ang[worst] > threshold:
                 # Several outliers pulling one way (spots joined across exposures, all displaced along the motion)
                 # drag the fit toward them and hide from a threshold on the claimed σ: also test against the
                 # instant's own robust scale (median residual norm / 1.1774 is σ for Gaussian errors), never below
-                # 0.4 of the threshold (2σ of the claimed σ at the default 5σ).
+                # 0.4 of the threshold (2σ of the claimed σ at the default 5σ). The median only decides a worst
+                # residual between those two bounds: outside them it is not computed.
                 med = median_value(used[:cnt]) / 1.1774
-                threshold = min(threshold, max(5.0 * med, 0.4 * outlier_threshold_rad))
+                threshold = min(threshold, max(5.0 * med, lower))
             if cnt > 2 and ang[worst] > threshold:
                 m[i, worst] = False
                 n_out += 1

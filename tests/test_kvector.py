@@ -47,7 +47,9 @@ def test_compiled_kvector_equals_the_checked_kvector():
     from startracker.kernels.kvector import kvector_build
 
     rng = np.random.default_rng(5)
-    for v in (rng.uniform(-50, 2100, 500), np.round(rng.uniform(0, 10, 300)), np.array([1.0, 1.0, 1.0]), np.array([4.2])):
+    cases = [rng.uniform(-50, 2100, 500), np.round(rng.uniform(0, 10, 300)), np.array([1.0, 1.0, 1.0]), np.array([4.2])]
+    cases += [v for v in _sort_cases() if v.size] + [np.concatenate([rng.uniform(0, 1, 50), [1e6, -1e6]])]
+    for v in cases:
         kv = KVector(v)
         order, s, k, a1, b1 = kvector_build(v)
         assert np.array_equal(order, kv.order) and np.array_equal(s, kv.sorted_values) and np.array_equal(k, kv.k)

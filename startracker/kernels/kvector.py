@@ -12,6 +12,8 @@ kernel that calls them carries that code again into its own compiled module.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -57,12 +59,30 @@ def kvector_fill(values, order, s, k):
         d = max(1.0, abs(s[0])) * 1e-9  # all values equal: any positive spacing works
     a1 = n * d / (n - 1) if n > 1 else d
     b1 = s[0] - d / 2.0 - a1
-    j = 0
+    # K(i) = #{j : S[j] <= h(i)} (h increases with i): each value is counted at the first i whose h(i) reaches it,
+    # then the counts summed. That i is the line's inverse, corrected by the comparison itself (rarely a step), so
+    # that K is the comparisons' exactly; walking both sequences together branches unpredictably at every step.
     for i in range(n):
-        h = a1 * (i + 1.0) + b1
-        while j < n and s[j] <= h:
-            j += 1
-        k[i] = j
+        k[i] = 0
+    for j in range(n):
+        v = s[j]
+        t = (v - b1) / a1 - 1.0
+        if not t > 0.0:
+            i = 0
+        elif t >= n:
+            i = n
+        else:
+            i = int(math.ceil(t))
+        while i > 0 and v <= a1 * (i + 0.0) + b1:  # h(i - 1) reaches v too
+            i -= 1
+        while i < n and v > a1 * (i + 1.0) + b1:
+            i += 1
+        if i < n:
+            k[i] += 1
+    c = 0
+    for i in range(n):
+        c += k[i]
+        k[i] = c
     k[0] = 0
     k[n - 1] = n
     return a1, b1

@@ -163,7 +163,9 @@ def project_frame(v_icrs, star, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixe
             vx = a * m[0, 0] + b * m[1, 0] + c * m[2, 0]
             vy = a * m[0, 1] + b * m[1, 1] + c * m[2, 1]
             vz = a * m[0, 2] + b * m[1, 2] + c * m[2, 2]
-            if not vz > 1e-12 * math.sqrt(vx * vx + vy * vy + vz * vz):
+            # in front of the camera: the sum of magnitudes bounds the norm, so the first test accepts without the
+            # square root wherever the second would
+            if not (vz > 2e-12 * (abs(vx) + abs(vy) + abs(vz)) or vz > 1e-12 * math.sqrt(vx * vx + vy * vy + vz * vz)):
                 continue
             x = focal_length_mm * vx / vz
             y = focal_length_mm * vy / vz
@@ -177,13 +179,13 @@ def project_frame(v_icrs, star, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixe
                 dx, dy = x - ppx, y - ppy
                 x = ppx + (dx * cos_rot + dy * sin_rot)
                 y = ppy + (-dx * sin_rot + dy * cos_rot)
-            if x >= x_lo and x <= x_hi and y >= y_lo and y <= y_hi:
-                xy[w, 0] = x
-                xy[w, 1] = y
-                st[w] = star[s]
-                inst[w] = i
-                on[w] = x >= -0.5 and x <= width - 0.5 and y >= -0.5 and y <= height - 0.5
-                w += 1
+            # written always, kept when within the margin: no branch on a test that fails for a third of the cone
+            xy[w, 0] = x
+            xy[w, 1] = y
+            st[w] = star[s]
+            inst[w] = i
+            on[w] = (x >= -0.5) & (x <= width - 0.5) & (y >= -0.5) & (y <= height - 0.5)
+            w += (x >= x_lo) & (x <= x_hi) & (y >= y_lo) & (y <= y_hi)
     return xy[:w].copy(), st[:w].copy(), inst[:w].copy(), on[:w].copy()
 
 

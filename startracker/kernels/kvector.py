@@ -62,11 +62,12 @@ def kvector_fill(values, order, s, k):
     # K(i) = #{j : S[j] <= h(i)} (h increases with i): each value is counted at the first i whose h(i) reaches it,
     # then the counts summed. That i is the line's inverse, corrected by the comparison itself (rarely a step), so
     # that K is the comparisons' exactly; walking both sequences together branches unpredictably at every step.
+    inv = 1.0 / a1  # the guess only: the comparisons below decide
     for i in range(n):
         k[i] = 0
     for j in range(n):
         v = s[j]
-        t = (v - b1) / a1 - 1.0
+        t = (v - b1) * inv - 1.0
         if not t > 0.0:
             i = 0
         elif t >= n:

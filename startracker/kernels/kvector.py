@@ -5,9 +5,9 @@ in one compiled call for the tracker's per-frame DKVLUT (:mod:`startracker.kerne
 
 It also holds the compiled kernels' sorting, selection and searching of sorted values (:func:`stable_argsort_into`,
 :func:`sort_values`, :func:`partition_values`, :func:`median_value`, :func:`search_sorted`). They stand in for
-``np.argsort``, ``np.sort``, ``np.partition``, ``np.median`` and ``np.searchsorted`` inside compiled code, with the same results on finite values: numba's own
-versions are generic code that takes seconds to compile per element type (about 4 s for ``np.sort``), and every
-kernel that calls them carries that code again into its own compiled module.
+``np.argsort``, ``np.sort``, ``np.partition``, ``np.median`` and ``np.searchsorted`` inside compiled code, with the
+same results on finite values: numba's own versions are generic code that takes seconds to compile per element type
+(about 4 s for ``np.sort``), and every kernel that calls them carries that code again into its own compiled module.
 """
 
 from __future__ import annotations

@@ -179,7 +179,7 @@ def project_frame(v_icrs, star, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixe
                 dx, dy = x - ppx, y - ppy
                 x = ppx + (dx * cos_rot + dy * sin_rot)
                 y = ppy + (-dx * sin_rot + dy * cos_rot)
-            # written always, kept when within the margin: no branch on a test that fails for a third of the cone
+            # written always, kept when within the margin: no branch on a test that fails for much of the cone
             xy[w, 0] = x
             xy[w, 1] = y
             st[w] = star[s]

@@ -382,16 +382,14 @@ def dkvlut_match(pred, order, k, line, cross, obs, radius_px):
         bd = np.inf
         for u in range(lo, hi):
             ro = cross[a, u]
-            e = order[a, u]
-            dx = xq - pred[e, 0]
-            dy = yq - pred[e, 1]
-            d2 = dx * dx + dy * dy
-            # Selections, not branches: whether a candidate is in R_x(u_x) ∩ R_y(u_y) (eq. 6) and the radius is a
-            # coin flip that a branch mispredicts; the running minimum alone carries from one candidate to the next.
-            key = d2 if (ro >= olo) & (ro < ohi) & (d2 <= r2) else np.inf
-            better = (key < bd) | ((key == bd) & (e < best))
-            best = e if better else best
-            bd = key if key < bd else bd
+            if ro >= olo and ro < ohi:  # R_x(u_x) ∩ R_y(u_y), eq. 6
+                e = order[a, u]
+                dx = xq - pred[e, 0]
+                dy = yq - pred[e, 1]
+                d2 = dx * dx + dy * dy
+                if d2 <= r2 and (d2 < bd or (d2 == bd and e < best)):
+                    best = e
+                    bd = d2
         out[q] = best
     return out
 

@@ -47,7 +47,9 @@ def test_compiled_kvector_equals_the_checked_kvector():
     from startracker.kernels.kvector import kvector_build
 
     rng = np.random.default_rng(5)
-    for v in (rng.uniform(-50, 2100, 500), np.round(rng.uniform(0, 10, 300)), np.array([1.0, 1.0, 1.0]), np.array([4.2])):
+    cases = [rng.uniform(-50, 2100, 500), np.round(rng.uniform(0, 10, 300)), np.array([1.0, 1.0, 1.0]), np.array([4.2])]
+    cases += [v for v in _sort_cases() if v.size] + [np.concatenate([rng.uniform(0, 1, 50), [1e6, -1e6]])]
+    for v in cases:
         kv = KVector(v)
         order, s, k, a1, b1 = kvector_build(v)
         assert np.array_equal(order, kv.order) and np.array_equal(s, kv.sorted_values) and np.array_equal(k, kv.k)
@@ -87,3 +89,23 @@ def test_compiled_sort_median_and_search_equal_numpy():
             assert search_sorted(s, x, False) == np.searchsorted(s, x, side="left")
             assert search_sorted(s, x, True) == np.searchsorted(s, x, side="right")
     assert np.isnan(median_value(np.empty(0)))
+
+
+def test_compiled_partition_selects_the_sorted_value_and_splits_around_it():
+    from startracker.kernels.kvector import partition_values
+
+    rng = np.random.default_rng(13)
+    cases = [v for v in _sort_cases() if v.size]
+    cases += [np.arange(100.0), np.arange(100.0)[::-1].copy(), np.tile([1.0, 0.0], 40), rng.normal(size=31)]
+    for v in cases:
+        v0 = v.copy()
+        s = np.sort(v)
+        ints = rng.integers(-40, 40, v.size)
+        si = np.sort(ints)
+        for k in sorted({0, v.size // 4, v.size // 2, v.size - 1, int(rng.integers(v.size))}):
+            for a, ref in ((v, s), (ints, si)):
+                p = partition_values(a, k)
+                assert p.dtype == a.dtype and np.array_equal(np.sort(p), ref)  # a permutation of the values
+                assert p[k] == ref[k]
+                assert np.all(p[:k] <= p[k]) and np.all(p[k + 1:] >= p[k])
+        assert np.array_equal(v, v0)  # the input is left alone

@@ -3,20 +3,22 @@
 The checked API and the method's description are in :mod:`startracker.kvector`; this module builds the same table
 in one compiled call for the tracker's per-frame DKVLUT (:mod:`startracker.kernels.track`).
 
-It also holds the compiled kernels' sorting and searching of sorted values (:func:`stable_argsort_into`,
-:func:`sort_values`, :func:`median_value`, :func:`search_sorted`). They stand in for ``np.argsort``, ``np.sort``,
-``np.median`` and ``np.searchsorted`` inside compiled code, with the same results on finite values: numba's own
-versions are generic code that takes seconds to compile per element type (about 4 s for ``np.sort``), and every
-kernel that calls them carries that code again into its own compiled module.
+It also holds the compiled kernels' sorting, selection and searching of sorted values (:func:`stable_argsort_into`,
+:func:`sort_values`, :func:`partition_values`, :func:`median_value`, :func:`search_sorted`). They stand in for
+``np.argsort``, ``np.sort``, ``np.partition``, ``np.median`` and ``np.searchsorted`` inside compiled code, with the
+same results on finite values: numba's own versions are generic code that takes seconds to compile per element type
+(about 4 s for ``np.sort``), and every kernel that calls them carries that code again into its own compiled module.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
-__all__ = ["kvector_build", "kvector_fill", "stable_argsort", "stable_argsort_into", "sort_values", "median_value",
-           "search_sorted"]
+__all__ = ["kvector_build", "kvector_fill", "stable_argsort", "stable_argsort_into", "sort_values", "partition_values",
+           "median_value", "search_sorted"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -57,12 +59,31 @@ def kvector_fill(values, order, s, k):
         d = max(1.0, abs(s[0])) * 1e-9  # all values equal: any positive spacing works
     a1 = n * d / (n - 1) if n > 1 else d
     b1 = s[0] - d / 2.0 - a1
-    j = 0
+    # K(i) = #{j : S[j] <= h(i)} (h increases with i): each value is counted at the first i whose h(i) reaches it,
+    # then the counts summed. That i is the line's inverse, corrected by the comparison itself (rarely a step), so
+    # that K is the comparisons' exactly; walking both sequences together branches unpredictably at every step.
+    inv = 1.0 / a1  # the guess only: the comparisons below decide
     for i in range(n):
-        h = a1 * (i + 1.0) + b1
-        while j < n and s[j] <= h:
-            j += 1
-        k[i] = j
+        k[i] = 0
+    for j in range(n):
+        v = s[j]
+        t = (v - b1) * inv - 1.0
+        if not t > 0.0:
+            i = 0
+        elif t >= n:
+            i = n
+        else:
+            i = int(math.ceil(t))
+        while i > 0 and v <= a1 * (i + 0.0) + b1:  # h(i - 1) reaches v too
+            i -= 1
+        while i < n and v > a1 * (i + 1.0) + b1:
+            i += 1
+        if i < n:
+            k[i] += 1
+    c = 0
+    for i in range(n):
+        c += k[i]
+        k[i] = c
     k[0] = 0
     k[n - 1] = n
     return a1, b1
@@ -258,16 +279,75 @@ def _sift_down(h, root, n):
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
+def partition_values(a, kth):
+    """``np.partition(a, kth)`` for a 1-d array without NaN: a copy with the ``kth`` smallest value at ``kth``, none
+    larger before it and none smaller after it (quickselect, median-of-three pivots; insertion below 16 values).
+
+    The selected value is the sorted array's (:func:`sort_values`), in O(n) on average instead of a sort's O(n log n):
+    a frame's quartile or an instant's median needs nothing else. The partitions are branch-free (Lomuto's scheme,
+    each value swapped and the boundary advanced by the comparison's outcome), the values below the pivot first,
+    then those equal to it: a branch on each comparison would be mispredicted about one time in two.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n,)
+        float64 or int64 values, n >= 1.
+    kth : int
+        0 <= kth < n.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The partitioned copy, same dtype.
+    """
+    s = a.copy()
+    lo, hi = 0, s.shape[0]  # the values of ranks [lo, hi) are in s[lo:hi], those below before, those above after
+    while hi - lo > 16:
+        p0, p1, p2 = s[lo], s[(lo + hi) >> 1], s[hi - 1]
+        x = max(min(p0, p1), min(max(p0, p1), p2))  # median of three: sorted or reversed runs are no worst case
+        j = lo
+        for i in range(lo, hi):
+            v = s[i]
+            s[i] = s[j]
+            s[j] = v
+            j += v < x
+        if kth < j:
+            hi = j  # the pivot itself is not below x: the range shrinks
+            continue
+        e = j
+        for i in range(j, hi):  # the values equal to x (none below it remain) next
+            v = s[i]
+            s[i] = s[e]
+            s[e] = v
+            e += v <= x
+        if kth < e:
+            return s
+        lo = e
+    for j in range(lo + 1, hi):
+        cur = s[j]
+        i = j - 1
+        while i >= lo and s[i] > cur:
+            s[i + 1] = s[i]
+            i -= 1
+        s[i + 1] = cur
+    return s
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
 def median_value(a):
     """``np.median(a)`` of a 1-d float64 array without NaN (NaN when empty): the middle value, or the mean
-    ``(lo + hi) / 2`` of the two middle values, as numpy computes it."""
+    ``(lo + hi) / 2`` of the two middle values, as numpy computes it (selected by :func:`partition_values`)."""
     n = a.shape[0]
     if n == 0:
         return np.nan
-    s = sort_values(a)
     half = n >> 1
+    s = partition_values(a, half)
     if n & 1 == 0:
-        return (s[half - 1] + s[half]) / 2
+        lo = s[0]  # the largest value before the middle one: the sorted array's s[half - 1]
+        for i in range(1, half):
+            if s[i] > lo:
+                lo = s[i]
+        return (lo + s[half]) / 2
     return s[half]
 
 

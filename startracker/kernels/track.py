@@ -18,7 +18,7 @@ from numba import njit
 from startracker.kernels.algebra import quat_multiply_into, quat_normalize_canonical, quat_to_rotation
 from startracker.kernels.attitude import solve_wahba_one
 from startracker.kernels.catalog import cone_search_angle
-from startracker.kernels.kvector import kvector_fill, median_value, sort_values
+from startracker.kernels.kvector import kvector_fill, median_value, partition_values
 from startracker.kernels.rotations import normalize_rows
 from startracker.kernels.sensor import accept_instants, gather_instants, innovation_chi2_mean, true_indices
 
@@ -163,7 +163,9 @@ def project_frame(v_icrs, star, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixe
             vx = a * m[0, 0] + b * m[1, 0] + c * m[2, 0]
             vy = a * m[0, 1] + b * m[1, 1] + c * m[2, 1]
             vz = a * m[0, 2] + b * m[1, 2] + c * m[2, 2]
-            if not vz > 1e-12 * math.sqrt(vx * vx + vy * vy + vz * vz):
+            # in front of the camera: the sum of magnitudes bounds the norm, so the first test accepts without the
+            # square root wherever the second would
+            if not (vz > 2e-12 * (abs(vx) + abs(vy) + abs(vz)) or vz > 1e-12 * math.sqrt(vx * vx + vy * vy + vz * vz)):
                 continue
             x = focal_length_mm * vx / vz
             y = focal_length_mm * vy / vz
@@ -177,13 +179,13 @@ def project_frame(v_icrs, star, r_cam_to_icrs, focal_length_mm, k1_per_mm2, pixe
                 dx, dy = x - ppx, y - ppy
                 x = ppx + (dx * cos_rot + dy * sin_rot)
                 y = ppy + (-dx * sin_rot + dy * cos_rot)
-            if x >= x_lo and x <= x_hi and y >= y_lo and y <= y_hi:
-                xy[w, 0] = x
-                xy[w, 1] = y
-                st[w] = star[s]
-                inst[w] = i
-                on[w] = x >= -0.5 and x <= width - 0.5 and y >= -0.5 and y <= height - 0.5
-                w += 1
+            # written always, kept when within the margin: no branch on a test that fails for much of the cone
+            xy[w, 0] = x
+            xy[w, 1] = y
+            st[w] = star[s]
+            inst[w] = i
+            on[w] = (x >= -0.5) & (x <= width - 0.5) & (y >= -0.5) & (y <= height - 0.5)
+            w += (x >= x_lo) & (x <= x_hi) & (y >= y_lo) & (y <= y_hi)
     return xy[:w].copy(), st[:w].copy(), inst[:w].copy(), on[:w].copy()
 
 
@@ -578,10 +580,13 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 ratio[j] = obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300)
                 j += 1
         # the scale of one exposure's light: the lower quartile (at low rates joined spots can be most matches)
-        cap = flux_ratio_max * sort_values(ratio)[n_assigned // 4]
+        cap = flux_ratio_max * partition_values(ratio, n_assigned // 4)[n_assigned // 4]
+        j = 0
         for q in range(k_n):
-            if assign[q] >= 0 and obs_intensity[q] / max(star_flux[pred_star[assign[q]]], 1e-300) > cap:
-                assign[q] = -1
+            if assign[q] >= 0:
+                if ratio[j] > cap:  # the ratio computed above, in the same detection order
+                    assign[q] = -1
+                j += 1
     counts = np.zeros(n_instants, dtype=np.int64)
     for q in range(k_n):
         if assign[q] >= 0:
@@ -633,13 +638,15 @@ def solve_instants(obs, v_body, idx, pred_xy, pred_instant, pred_star, catalog_v
                 if ang[s] > ang[worst]:  # unused pairs hold -1
                     worst = s
             threshold = outlier_threshold_rad
-            if cnt >= ROBUST_MIN_STARS:
+            lower = 0.4 * outlier_threshold_rad
+            if cnt >= ROBUST_MIN_STARS and ang[worst] > lower and not ang[worst] > threshold:
                 # Several outliers pulling one way (spots joined across exposures, all displaced along the motion)
                 # drag the fit toward them and hide from a threshold on the claimed σ: also test against the
                 # instant's own robust scale (median residual norm / 1.1774 is σ for Gaussian errors), never below
-                # 0.4 of the threshold (2σ of the claimed σ at the default 5σ).
+                # 0.4 of the threshold (2σ of the claimed σ at the default 5σ). The median only decides a worst
+                # residual between those two bounds: outside them it is not computed.
                 med = median_value(used[:cnt]) / 1.1774
-                threshold = min(threshold, max(5.0 * med, 0.4 * outlier_threshold_rad))
+                threshold = min(threshold, max(5.0 * med, lower))
             if cnt > 2 and ang[worst] > threshold:
                 m[i, worst] = False
                 n_out += 1

@@ -34,7 +34,8 @@ numpy, the random draws), each in µs per step (medians over the repeats), with 
 and the steps/s of physics plus kernels alone: the ceiling of this configuration if every line of Python around the
 kernels cost nothing, with the kernels' arithmetic as it is. The timers add about 0.3 µs per timed call to the
 rest. The same budget is then split by the exposures per frame N of each step's frame (1, 2-14, >= 15): the
-multi-exposure frames near the top rate are where the compiled kernels' arithmetic dominates. Then the matcher table of ``bench_matching.py`` (DKVLUT vs compiled
+multi-exposure frames near the top rate are where the compiled kernels' arithmetic dominates. Last, the four
+largest kernels of each configuration, µs per step. Then the matcher table of ``bench_matching.py`` (DKVLUT vs compiled
 brute force vs scipy's cKDTree) when ``--matchers`` is given.
 
     python benchmarks/bench_env_speed.py [--quick] [--repeats 5] [--episodes 2] [--vector-envs 2] [--budget] [--matchers]
@@ -141,7 +142,8 @@ def physics_only(actions, control_period_s: float, substep_s: float) -> float:
 @contextlib.contextmanager
 def timed_calls(totals: collections.Counter):
     """Time every call from Python of the compiled kernels and of ``Spacecraft.step_recording`` while the context is
-    open: ``totals["kernels"]``, ``totals["kernel calls"]`` and ``totals["physics"]`` (s) accumulate.
+    open: ``totals["kernels"]``, ``totals["kernel calls"]`` and ``totals["physics"]`` (s) accumulate, and each
+    kernel's own time under ``"kernel: <module>.<name>"``.
 
     Each numba dispatcher held under a public name by a loaded ``startracker`` or ``envs`` module is replaced by a
     timing wrapper (one per dispatcher) and put back on exit.
@@ -150,10 +152,14 @@ def timed_calls(totals: collections.Counter):
     wrappers, patched = {}, []
 
     def timing(dispatcher):
+        key = f"kernel: {dispatcher.py_func.__module__.rsplit('.', 1)[-1]}.{dispatcher.__name__}"
+
         def call(*args):
             t0 = clock()
             out = dispatcher(*args)
-            totals["kernels"] += clock() - t0
+            dt = clock() - t0
+            totals["kernels"] += dt
+            totals[key] += dt
             totals["kernel calls"] += 1
             return out
         return call
@@ -218,7 +224,8 @@ def step_budget(kwargs: dict, n_episodes: int, angle_deg: float, max_episode_s: 
     us = 1e6 / steps
     return {"env": wall * us, "physics": totals["physics"] * us, "kernels": totals["kernels"] * us,
             "rest": (wall - totals["physics"] - totals["kernels"]) * us, "calls": totals["kernel calls"] / steps,
-            "by_n": by_n}
+            "by_n": by_n,
+            "by_kernel": {k[len("kernel: "):]: v * us for k, v in totals.items() if k.startswith("kernel: ")}}
 
 
 N_BANDS = ("1", "2-14", ">= 15")
@@ -358,7 +365,7 @@ def main():
               "| kernels / physics | steps/s with no Python (physics + kernels) |")
         print("|---|---|---|---|---|---|---|---|")
         for name, runs in budgets.items():
-            med = {key: float(np.median([r[key] for r in runs])) for key in runs[0] if key != "by_n"}
+            med = {key: float(np.median([r[key] for r in runs])) for key in runs[0] if not key.startswith("by_")}
             print(f"| {name} | {med['env']:.0f} | {med['physics']:.0f} | {med['kernels']:.0f} | {med['calls']:.1f} | "
                   f"{med['rest']:.0f} | {med['kernels'] / med['physics']:.2f} | "
                   f"{1e6 / (med['physics'] + med['kernels']):.0f} |")
@@ -378,6 +385,16 @@ def main():
                 rest_us = float(np.median([1e6 * (row[1] - row[2] - row[3]) / row[0] for row in rows]))
                 print(f"| {name} | {band} | {100 * steps_share:.0f} % | {100 * time_share:.0f} % | {env_us:.0f} | "
                       f"{phys_us:.0f} | {kern_us:.0f} | {rest_us:.0f} |")
+        print()
+        print(f"The largest compiled kernels, µs per step over whole episodes (median of {reps} runs; a kernel's time "
+              "includes the compiled calls it makes)")
+        print("| configuration | first | second | third | fourth |")
+        print("|---|---|---|---|---|")
+        for name, runs in budgets.items():
+            names = set().union(*(r["by_kernel"] for r in runs))
+            per = {k: float(np.median([r["by_kernel"].get(k, 0.0) for r in runs])) for k in names}
+            top = sorted(per.items(), key=lambda kv: -kv[1])[:4]
+            print(f"| {name} | " + " | ".join(f"`{k}` {v:.0f}" for k, v in top) + " |")
     if args.matchers:
         import bench_matching
 

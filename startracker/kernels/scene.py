@@ -273,14 +273,17 @@ def _select_planar(xs, ys, in_front, n_path_samples, n_cols, n_rows, margin_px):
     xy_path = np.empty((n, s, m, 2))
     visible = np.empty((n, m), dtype=np.bool_)
     for e in range(n):
+        for t in range(s):  # row by row: contiguous stores
+            i = e * s + t
+            for j in range(m):
+                k = keep[j]
+                xy_path[e, t, j, 0] = xs[i, k]
+                xy_path[e, t, j, 1] = ys[i, k]
         for j in range(m):
             k = keep[j]
             front = True
             for t in range(s):
-                i = e * s + t
-                xy_path[e, t, j, 0] = xs[i, k]
-                xy_path[e, t, j, 1] = ys[i, k]
-                front = front and in_front[i, k]
+                front = front and in_front[e * s + t, k]
             x, y = xy_path[e, s // 2, j, 0], xy_path[e, s // 2, j, 1]
             visible[e, j] = front and x >= -0.5 and x <= n_cols - 0.5 and y >= -0.5 and y <= n_rows - 0.5
     return keep, xy_path, visible

@@ -59,7 +59,10 @@ def _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd):
     xx, yy, zz = wx * wx - w2, wy * wy - w2, wz * wz - w2
     xy, xz, yz = wx * wy, wx * wz, wy * wz
     # Φ11 = I - c1 [ω×] + c2 [ω×]²;  Φ12 = -dt I + c2 [ω×] - c3 [ω×]²;  Φ21 = 0;  Φ22 = I
-    phi[:] = 0.0
+    for i in range(3, 6):  # element stores, not a slice assignment (its generic loop is slower)
+        for j in range(3):
+            phi[i, j] = 0.0
+            phi[i, j + 3] = 0.0
     phi[0, 0] = 1.0 + c2 * xx
     phi[0, 1] = c1 * wz + c2 * xy
     phi[0, 2] = -c1 * wy + c2 * xz
@@ -83,7 +86,9 @@ def _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd):
     q11 = sv2 * dt + su2 * dt * dt * dt / 3.0
     q12 = -0.5 * su2 * dt * dt
     q22 = su2 * dt
-    qd[:] = 0.0
+    for i in range(6):
+        for j in range(6):
+            qd[i, j] = 0.0
     for i in range(3):
         qd[i, i] = q11
         qd[i, i + 3] = q12

@@ -190,3 +190,51 @@ def test_fuse_timed_is_the_timing_test_then_fuse(seed):
             assert np.array_equal(a2.last_nis, b2.last_nis)
             assert np.array_equal(a2.last_innovation_rad, b2.last_innovation_rad)
             assert np.array_equal(a2.last_innovation_cov_rad2, b2.last_innovation_cov_rad2)
+
+
+@pytest.mark.parametrize("case", ["one_at_end", "one_inside", "several"])
+def test_fuse_frame_timed_kernel_is_the_three_calls(case):
+    """kernels.filter.fuse_frame_timed equals, bit for bit, fuse_frame on copies with a gate below every NIS,
+    timing_statistic, then fuse_frame: every output and in-place array (Φ and Q of the last propagation and the
+    propagation count too), with one sample at the last gyro instant (no propagation after it), one inside the
+    intervals and several."""
+    from startracker.kernels import filter as kf
+
+    ekf, wg, tg, q_meas, t_meas, cov = setup(1, g=11)
+    t_meas = {"one_at_end": [tg[-1]], "one_inside": [0.0734], "several": [0.0234, 0.0534, 0.0534, 0.11]}[case]
+    rng = np.random.default_rng(3)
+    tm = np.array(t_meas)
+    qm = np.array([quat_multiply(quat_integrate(ekf.q_body_to_icrs, np.radians([0.0, 20.0, 3.0]), t),
+                                 quat_from_rotvec(rng.normal(size=3) * 5 * ARCSEC)) for t in tm])
+    rs = np.repeat(cov[None], len(tm), axis=0)
+    rn = np.zeros((len(tg), 3))
+    rn[4] = 1e-9  # one saturated interval
+    u = np.radians([0.0, 20.0, 3.0]) / np.linalg.norm(np.radians([0.0, 20.0, 3.0]))
+    m = len(tm)
+
+    def state():
+        return [np.array(ekf.q_body_to_icrs, float), np.array(ekf.bias_rad_s, float), np.array(ekf.P, float),
+                np.zeros(m, bool), np.full((6, 6), 7.0), np.full((6, 6), 8.0), np.full(3, 9.0), np.zeros(m),
+                np.zeros((m, 3)), np.zeros((m, 3, 3))]
+
+    def call(st):
+        q, b, P, acc, phi, qd, zl, nis, zo, so = st
+        return q, b, P, float(ekf.t_s), wg, tg, qm, tm, rs, ekf.sigma_v, ekf.sigma_u, 30.0, acc, phi, qd, zl, rn, nis, zo, so
+
+    ref = state()
+    q, b, P = ref[0].copy(), ref[1].copy(), ref[2].copy()
+    z, s = np.empty((m, 3)), np.empty((m, 3, 3))
+    kf.fuse_frame(q, b, P, float(ekf.t_s), wg, tg, qm, tm, rs, ekf.sigma_v, ekf.sigma_u, -1.0, np.empty(m, bool),
+                  np.empty((6, 6)), np.empty((6, 6)), np.empty(3), rn, np.empty(m), z, s)
+    stat_ref, loose_ref = kf.timing_statistic(u, z, s, rs, 4.0)
+    t_ref, n_acc_ref, n_prop_ref = kf.fuse_frame(*call(ref))
+    got = state()
+    out = kf.fuse_frame_timed(*call(got), u, np.inf, 4.0)
+    assert out == (stat_ref, loose_ref, True, t_ref, n_acc_ref, n_prop_ref)
+    for x, y in zip(got, ref):
+        assert np.array_equal(x, y)
+    held = state()  # the test fails: nothing changes
+    out = kf.fuse_frame_timed(*call(held), u, stat_ref * 0.5, 4.0)
+    assert out == (stat_ref, loose_ref, False, float(ekf.t_s), 0, 0)
+    for x, y in zip(held, state()):
+        assert np.array_equal(x, y)

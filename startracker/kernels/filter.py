@@ -59,7 +59,10 @@ def _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd):
     xx, yy, zz = wx * wx - w2, wy * wy - w2, wz * wz - w2
     xy, xz, yz = wx * wy, wx * wz, wy * wz
     # Φ11 = I - c1 [ω×] + c2 [ω×]²;  Φ12 = -dt I + c2 [ω×] - c3 [ω×]²;  Φ21 = 0;  Φ22 = I
-    phi[:] = 0.0
+    for i in range(3, 6):  # element stores, not a slice assignment (its generic loop is slower)
+        for j in range(3):
+            phi[i, j] = 0.0
+            phi[i, j + 3] = 0.0
     phi[0, 0] = 1.0 + c2 * xx
     phi[0, 1] = c1 * wz + c2 * xy
     phi[0, 2] = -c1 * wy + c2 * xz
@@ -83,7 +86,9 @@ def _transition_into(wx, wy, wz, dt, sigma_v, sigma_u, phi, qd):
     q11 = sv2 * dt + su2 * dt * dt * dt / 3.0
     q12 = -0.5 * su2 * dt * dt
     q22 = su2 * dt
-    qd[:] = 0.0
+    for i in range(6):
+        for j in range(6):
+            qd[i, j] = 0.0
     for i in range(3):
         qd[i, i] = q11
         qd[i, i + 3] = q12
@@ -904,15 +909,37 @@ def fuse_frame_timed(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_ch
     m = qm.shape[0]
     z = np.empty((m, 3))
     s = np.empty((m, 3, 3))
-    fuse_frame(q.copy(), b.copy(), P.copy(), t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, -1.0,
+    # the two passes are one up to the first sample (a still frame's ~9 of its ~10 intervals): that stretch is
+    # propagated once, as fuse_frame's first loop would, and both passes go on from it (fuse_frame skips the
+    # intervals that end before its start: their dt <= 0)
+    q0, b0, P0 = q.copy(), b.copy(), P.copy()
+    phi0 = np.empty((6, 6))
+    qd0 = np.empty((6, 6))
+    m1 = np.empty((3, 3))
+    m2 = np.empty((3, 3))
+    t0 = t_s
+    g = 0
+    n_pre = 0
+    while g < tg.shape[0] and tg[g] < tm[0]:
+        dt = tg[g] - t0
+        if dt > 0.0:
+            _propagate(q0, b0, P0, wg[g], rate_noise[g], dt, sigma_v, sigma_u, phi0, qd0, m1, m2)
+            n_pre += 1
+            t0 = tg[g]
+        g += 1
+    fuse_frame(q0.copy(), b0.copy(), P0.copy(), t0, wg, tg, qm, tm, rs, sigma_v, sigma_u, -1.0,
                np.empty(m, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3), rate_noise, np.empty(m),
                z, s)
     stat, loose = timing_statistic(u, z, s, rs, loose_ratio)
     if stat > timing_chi2_max:
         return stat, loose, False, t_s, 0, 0
-    t, n_acc, n_prop = fuse_frame(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd,
+    # Φ and Q: the second pass propagates at least once more (to tm[0] > t0, or to tg[-1] > t_s), so it sets them
+    q[:] = q0
+    b[:] = b0
+    P[:] = P0
+    t, n_acc, n_prop = fuse_frame(q, b, P, t0, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd,
                                   z_last, rate_noise, nis_out, z_out, s_out)
-    return stat, loose, True, t, n_acc, n_prop
+    return stat, loose, True, t, n_acc, n_pre + n_prop
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

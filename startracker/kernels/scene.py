@@ -65,6 +65,8 @@ def interpolate_attitudes(t_samples, q_samples, t_query):
     out = np.empty((n_q, 4))
     p = np.empty(4)
     r = np.empty(4)
+    k_prev = -1
+    dw = dx = dy = dz = vn = arc = 0.0
     for i in range(n_q):
         t = min(max(t_query[i], t_samples[0]), t_samples[n_s - 1])
         k = search_sorted(t_samples, t, np.bool_(False)) - 1  # side="left"; a bool, not a literal: one signature
@@ -73,25 +75,28 @@ def interpolate_attitudes(t_samples, q_samples, t_query):
         if k > n_s - 2:
             k = n_s - 2
         alpha = (t - t_samples[k]) / (t_samples[k + 1] - t_samples[k])
-        np_ = 0.0
-        nr = 0.0
-        for j in range(4):
-            np_ += q_samples[k, j] * q_samples[k, j]
-            nr += q_samples[k + 1, j] * q_samples[k + 1, j]
-        np_ = math.sqrt(np_)
-        nr = math.sqrt(nr)
-        for j in range(4):
-            p[j] = q_samples[k, j] / np_
-            r[j] = q_samples[k + 1, j] / nr
-        # d = conj(p) ⊗ r
-        dw = p[0] * r[0] + p[1] * r[1] + p[2] * r[2] + p[3] * r[3]
-        dx = p[0] * r[1] - p[1] * r[0] - p[2] * r[3] + p[3] * r[2]
-        dy = p[0] * r[2] + p[1] * r[3] - p[2] * r[0] - p[3] * r[1]
-        dz = p[0] * r[3] - p[1] * r[2] + p[2] * r[1] - p[3] * r[0]
-        if dw < 0.0:  # the short arc
-            dw, dx, dy, dz = -dw, -dx, -dy, -dz
-        vn = math.sqrt(dx * dx + dy * dy + dz * dz)
-        angle = 2.0 * math.atan2(vn, dw) * alpha  # rotation angle of exp(α δ)
+        if k != k_prev:  # the interval's own terms, shared by the queries in it (a frame's ~60 fall in ~11)
+            k_prev = k
+            np_ = 0.0
+            nr = 0.0
+            for j in range(4):
+                np_ += q_samples[k, j] * q_samples[k, j]
+                nr += q_samples[k + 1, j] * q_samples[k + 1, j]
+            np_ = math.sqrt(np_)
+            nr = math.sqrt(nr)
+            for j in range(4):
+                p[j] = q_samples[k, j] / np_
+                r[j] = q_samples[k + 1, j] / nr
+            # d = conj(p) ⊗ r
+            dw = p[0] * r[0] + p[1] * r[1] + p[2] * r[2] + p[3] * r[3]
+            dx = p[0] * r[1] - p[1] * r[0] - p[2] * r[3] + p[3] * r[2]
+            dy = p[0] * r[2] + p[1] * r[3] - p[2] * r[0] - p[3] * r[1]
+            dz = p[0] * r[3] - p[1] * r[2] + p[2] * r[1] - p[3] * r[0]
+            if dw < 0.0:  # the short arc
+                dw, dx, dy, dz = -dw, -dx, -dy, -dz
+            vn = math.sqrt(dx * dx + dy * dy + dz * dz)
+            arc = 2.0 * math.atan2(vn, dw)
+        angle = arc * alpha  # rotation angle of exp(α δ)
         if vn > 0.0:
             s = math.sin(0.5 * angle) / vn
         else:
@@ -238,6 +243,19 @@ def select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px
         In front over the whole exposure and, at the mid instant, on the detector (outer pixel edges).
     """
     n_p, k_n = in_front.shape
+    xs = np.empty((n_p, k_n))
+    ys = np.empty((n_p, k_n))
+    for i in range(n_p):
+        for k in range(k_n):
+            xs[i, k] = xy[i, k, 0]
+            ys[i, k] = xy[i, k, 1]
+    return _select_planar(xs, ys, in_front, n_path_samples, n_cols, n_rows, margin_px)
+
+
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _select_planar(xs, ys, in_front, n_path_samples, n_cols, n_rows, margin_px):
+    """:func:`select_near_detector` on the columns ``xs`` and rows ``ys`` (P, K) held apart."""
+    n_p, k_n = in_front.shape
     s = n_path_samples
     n = n_p // s
     lo_x, hi_x = -0.5 - margin_px, n_cols - 0.5 + margin_px
@@ -246,7 +264,7 @@ def select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px
     m = 0
     for k in range(k_n):
         for i in range(n_p):
-            x, y = xy[i, k, 0], xy[i, k, 1]
+            x, y = xs[i, k], ys[i, k]
             if in_front[i, k] and x >= lo_x and x <= hi_x and y >= lo_y and y <= hi_y:
                 keep[m] = k
                 m += 1
@@ -255,20 +273,23 @@ def select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px
     xy_path = np.empty((n, s, m, 2))
     visible = np.empty((n, m), dtype=np.bool_)
     for e in range(n):
+        for t in range(s):  # row by row: contiguous stores
+            i = e * s + t
+            for j in range(m):
+                k = keep[j]
+                xy_path[e, t, j, 0] = xs[i, k]
+                xy_path[e, t, j, 1] = ys[i, k]
         for j in range(m):
             k = keep[j]
             front = True
             for t in range(s):
-                i = e * s + t
-                xy_path[e, t, j, 0] = xy[i, k, 0]
-                xy_path[e, t, j, 1] = xy[i, k, 1]
-                front = front and in_front[i, k]
+                front = front and in_front[e * s + t, k]
             x, y = xy_path[e, s // 2, j, 0], xy_path[e, s // 2, j, 1]
             visible[e, j] = front and x >= -0.5 and x <= n_cols - 0.5 and y >= -0.5 and y <= n_rows - 0.5
     return keep, xy_path, visible
 
 
-@njit(cache=True, no_cfunc_wrapper=True)
+@njit(cache=True, no_cfunc_wrapper=True, error_model="numpy")
 def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px, cy_px,
                   n_path_samples, n_cols, n_rows, margin_px, cos_rot=1.0, sin_rot=0.0):
     """Every candidate star at every instant through the pinhole with radial distortion, then
@@ -308,7 +329,10 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
     vz = np.empty(k_n)
     for k in range(k_n):
         vx[k], vy[k], vz[k] = vectors[index[k], 0], vectors[index[k], 1], vectors[index[k], 2]
-    xy = np.empty((n_p, k_n, 2))
+    # columns and rows in separate planes and error_model="numpy" (no zero-division branch: Z is never 0 here, the
+    # same IEEE operations, so the same bits): the loop over the stars then runs in vector registers
+    xs = np.empty((n_p, k_n))
+    ys = np.empty((n_p, k_n))
     in_front = np.empty((n_p, k_n), dtype=np.bool_)
     f_px = focal_length_mm / pixel_size_mm
     k1_px = k1_per_mm2 * focal_length_mm * focal_length_mm  # δ = k1 f² (X² + Y²) / Z²
@@ -317,25 +341,32 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
         r00, r10, r20 = r_cam_to_icrs[i, 0, 0], r_cam_to_icrs[i, 1, 0], r_cam_to_icrs[i, 2, 0]
         r01, r11, r21 = r_cam_to_icrs[i, 0, 1], r_cam_to_icrs[i, 1, 1], r_cam_to_icrs[i, 2, 1]
         r02, r12, r22 = r_cam_to_icrs[i, 0, 2], r_cam_to_icrs[i, 1, 2], r_cam_to_icrs[i, 2, 2]
+        xr = xs[i]
+        yr = ys[i]
+        fr = in_front[i]
         for k in range(k_n):
             x = r00 * vx[k] + r10 * vy[k] + r20 * vz[k]
             y = r01 * vx[k] + r11 * vy[k] + r21 * vz[k]
             z = r02 * vx[k] + r12 * vy[k] + r22 * vz[k]
             front = (z > 0.0) & (z * z > 1e-24 * (x * x + y * y + z * z))  # Z > 1e-12 |v|
-            in_front[i, k] = front
+            fr[k] = front
             inv_z = 1.0 / (z if front else 1.0)
             u = x * inv_z
             w = y * inv_z
             g = f_px * (1.0 + k1_px * (u * u + w * w))
-            if rotate:
-                dx = u * g
-                dy = w * g
-                xy[i, k, 0] = cx_px + (dx * cos_rot + dy * sin_rot)
-                xy[i, k, 1] = cy_px + (-dx * sin_rot + dy * cos_rot)
-            else:
-                xy[i, k, 0] = u * g + cx_px
-                xy[i, k, 1] = w * g + cy_px
-    return select_near_detector(xy, in_front, n_path_samples, n_cols, n_rows, margin_px)
+            xr[k] = u * g
+            yr[k] = w * g
+        if rotate:
+            for k in range(k_n):
+                dx = xr[k]
+                dy = yr[k]
+                xr[k] = cx_px + (dx * cos_rot + dy * sin_rot)
+                yr[k] = cy_px + (-dx * sin_rot + dy * cos_rot)
+        else:
+            for k in range(k_n):
+                xr[k] = xr[k] + cx_px
+                yr[k] = yr[k] + cy_px
+    return _select_planar(xs, ys, in_front, n_path_samples, n_cols, n_rows, margin_px)
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

@@ -74,14 +74,10 @@ def test_compiled_stable_argsort_is_numpys_stable_permutation():
         assert np.array_equal(stable_argsort(v), np.argsort(v, kind="stable"))
 
 
-def test_compiled_sort_median_and_search_equal_numpy():
-    from startracker.kernels.kvector import median_value, search_sorted, sort_values
+def test_compiled_median_and_search_equal_numpy():
+    from startracker.kernels.kvector import median_value, search_sorted
 
-    rng = np.random.default_rng(12)
     for v in _sort_cases():
-        assert np.array_equal(sort_values(v), np.sort(v))
-        ints = rng.integers(-40, 40, v.size)
-        assert np.array_equal(sort_values(ints), np.sort(ints))
         if v.size:  # bit for bit, the mean of the two middle values included
             assert np.float64(median_value(v)).tobytes() == np.median(v).tobytes()
         s = np.sort(v)

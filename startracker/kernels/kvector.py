@@ -4,10 +4,10 @@ The checked API and the method's description are in :mod:`startracker.kvector`; 
 in one compiled call for the tracker's per-frame DKVLUT (:mod:`startracker.kernels.track`).
 
 It also holds the compiled kernels' sorting, selection and searching of sorted values (:func:`stable_argsort_into`,
-:func:`sort_values`, :func:`partition_values`, :func:`median_value`, :func:`search_sorted`). They stand in for
-``np.argsort``, ``np.sort``, ``np.partition``, ``np.median`` and ``np.searchsorted`` inside compiled code, with the
-same results on finite values: numba's own versions are generic code that takes seconds to compile per element type
-(about 4 s for ``np.sort``), and every kernel that calls them carries that code again into its own compiled module.
+:func:`partition_values`, :func:`median_value`, :func:`search_sorted`). They stand in for ``np.argsort``,
+``np.partition``, ``np.median`` and ``np.searchsorted`` inside compiled code, with the same results on finite values:
+numba's own versions are generic code that takes seconds to compile per element type (about 4 s for ``np.sort``), and
+every kernel that calls them carries that code again into its own compiled module.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["kvector_build", "kvector_fill", "stable_argsort", "stable_argsort_into", "sort_values", "partition_values",
+__all__ = ["kvector_build", "kvector_fill", "stable_argsort", "stable_argsort_into", "partition_values",
            "median_value", "search_sorted"]
 
 
@@ -225,65 +225,11 @@ def _merge_argsort(values, order, a, e, tmp):
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
-def sort_values(a):
-    """``np.sort(a)`` for a 1-d array without NaN: an ascending copy (heapsort; insertion below 16 values).
-
-    Parameters
-    ----------
-    a : ndarray, shape (n,)
-        float64 or int64 values.
-
-    Returns
-    -------
-    ndarray, shape (n,)
-        The values ascending, same dtype.
-    """
-    n = a.shape[0]
-    out = a.copy()
-    if n <= 16:
-        for j in range(1, n):
-            cur = out[j]
-            i = j - 1
-            while i >= 0 and out[i] > cur:
-                out[i + 1] = out[i]
-                i -= 1
-            out[i + 1] = cur
-        return out
-    # heapsort: build a max-heap, then move the maximum to the end n - 1 times
-    for start in range(n // 2 - 1, -1, -1):
-        _sift_down(out, start, n)
-    root = np.int64(0)  # an int64, not a literal 0: the callee compiles once, not once per literal
-    for end in range(n - 1, 0, -1):
-        top = out[0]
-        out[0] = out[end]
-        out[end] = top
-        _sift_down(out, root, end)
-    return out
-
-
-@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _sift_down(h, root, n):
-    """Restore the max-heap property below ``root`` in ``h[:n]``."""
-    cur = h[root]
-    while True:
-        child = 2 * root + 1
-        if child >= n:
-            break
-        if child + 1 < n and h[child + 1] > h[child]:
-            child += 1
-        if not h[child] > cur:
-            break
-        h[root] = h[child]
-        root = child
-    h[root] = cur
-
-
-@njit(cache=True, no_cfunc_wrapper=True)
 def partition_values(a, kth):
     """``np.partition(a, kth)`` for a 1-d array without NaN: a copy with the ``kth`` smallest value at ``kth``, none
     larger before it and none smaller after it (quickselect, median-of-three pivots; insertion below 16 values).
 
-    The selected value is the sorted array's (:func:`sort_values`), in O(n) on average instead of a sort's O(n log n):
+    The selected value is the sorted array's (``np.sort(a)[kth]``), in O(n) on average instead of a sort's O(n log n):
     a frame's quartile or an instant's median needs nothing else. The partitions are branch-free (Lomuto's scheme,
     each value swapped and the boundary advanced by the comparison's outcome), the values below the pivot first,
     then those equal to it: a branch on each comparison would be mispredicted about one time in two.

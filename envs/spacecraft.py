@@ -613,18 +613,19 @@ class Spacecraft:
             abs(sp) + horizon * (abs(tq) / self._i_s + coupling) < smax
             for sp, tq, smax in zip(speeds, tau, self._speed_max_list)
         )
-        sl = self._sl_quat
+        # a view of MjData's own buffer (mj_step writes in place): one slice per span, not one per substep
+        q_now = data.qpos[self._sl_quat]
         if fast:
             data.ctrl[:] = self._torque_cmd
             for k in range(n_steps):
                 mujoco.mj_step(m, data)
                 times_out[k] = data.time
-                quats_out[k] = data.qpos[sl]
+                quats_out[k] = q_now
             return times_out, quats_out
         for k in range(n_steps):
             self.step(duration_s)
             times_out[k] = data.time
-            quats_out[k] = data.qpos[sl]
+            quats_out[k] = q_now
         return times_out, quats_out
 
     # ------------------------------------------------------------------ snapshots and pickling

@@ -271,7 +271,7 @@ def _pixel_fidelity(scene, model, rng, k, method, min_area_px, psf_sigma_px, inc
     else:
         sf = render_sparse(scene, replace(model, hot_pixel_fraction=0.0), rng, k,
                            false_objects=FalseObjects.none(), draw_crossings=False, validate=False)
-    return detections_from_sparse(sf, method, min_area_px=min_area_px, psf_sigma_px=psf_sigma_px)
+    return detections_from_sparse(sf, method, min_area_px=min_area_px, psf_sigma_px=psf_sigma_px, validate=False)
 
 
 def simulate_detections(

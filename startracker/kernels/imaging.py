@@ -118,22 +118,57 @@ def _upper_tail_hart(t):
     return e / b / 2.506628274631
 
 
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True, error_model="numpy")
+def _edge_tails(t, q, m):
+    """``q[i] = Q(|t[i]|)`` by :func:`_upper_tail_hart` (the same operations, so the same values) for i < m.
+
+    In passes over all the edges of a window: the ``exp`` calls, then Hart's rational (two Horner chains and a
+    division, most of its cost) in a branch-free loop that vectorises (error_model="numpy": no zero-division
+    branch; its denominator is >= 440), then the rare far-tail edges (|t| >= 7.07, or NaN) redone, in a pass
+    run only when there are any (a loop testing each edge costs as much as the rational).
+    """
+    for i in range(m):
+        a = abs(t[i])
+        q[i] = math.exp(-0.5 * a * a)
+    far = 0
+    for i in range(m):
+        a = abs(t[i])
+        n = 3.52624965998911e-02 * a + 0.700383064443688
+        n = n * a + 6.37396220353165
+        n = n * a + 33.912866078383
+        n = n * a + 112.079291497871
+        n = n * a + 221.213596169931
+        n = n * a + 220.206867912376
+        d = 8.83883476483184e-02 * a + 1.75566716318264
+        d = d * a + 16.064177579207
+        d = d * a + 86.7807322029461
+        d = d * a + 296.564248779674
+        d = d * a + 637.333633378831
+        d = d * a + 793.826512519948
+        d = d * a + 440.413735824752
+        q[i] = q[i] * n / d
+        far += not a < 7.07106781186547  # a count, not a branch: the loop stays vectorised
+    if far > 0:
+        for i in range(m):
+            a = abs(t[i])
+            if not a < 7.07106781186547:
+                q[i] = _upper_tail_hart(a)
+
+
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
-def _axis_profile(edge0, n, centre, inv_sigma, out):
-    """Fraction of a unit Gaussian (centre, σ) in each of n pixels whose first lower edge is edge0."""
-    prev_t = (edge0 - centre) * inv_sigma
-    prev_v = _upper_tail_hart(abs(prev_t))
+def _edge_fractions(t, q, i0, n, out):
+    """Fraction of a unit Gaussian in each of n pixels whose edges' standardised positions are t[i0 : i0 + n + 1]
+    and their upper tails ``Q(|t|)`` q[i0 : i0 + n + 1] (from :func:`_edge_tails`)."""
     for j in range(n):
-        t = (edge0 + j + 1.0 - centre) * inv_sigma
-        v = _upper_tail_hart(abs(t))
-        if prev_t >= 0.0:
-            out[j] = prev_v - v  # both edges right of the centre: Q(a) − Q(b)
-        elif t <= 0.0:
-            out[j] = v - prev_v  # both left: Q(−b) − Q(−a)
+        ta = t[i0 + j]
+        qa = q[i0 + j]
+        qb = q[i0 + j + 1]
+        if ta >= 0.0:
+            out[j] = qa - qb  # both edges right of the centre: Q(a) − Q(b)
+        elif t[i0 + j + 1] <= 0.0:
+            out[j] = qb - qa  # both left: Q(−b) − Q(−a)
         else:
-            out[j] = 1.0 - v - prev_v
-        prev_t = t
-        prev_v = v
+            out[j] = 1.0 - qb - qa
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -238,6 +273,8 @@ def render_spot_windows(sub_xy, sub_w, sigma_px, half_width_px, n_cols, n_rows, 
     gy = np.empty((n_k, w_max))
     gx_max = np.empty(n_k)
     acc = np.empty(w_max)
+    t_edge = np.empty(2 * n_k * (w_max + 1))
+    q_edge = np.empty(2 * n_k * (w_max + 1))
     n = 0
     for p in range(n_p):
         ca = ca_[p]
@@ -247,10 +284,25 @@ def render_spot_windows(sub_xy, sub_w, sigma_px, half_width_px, n_cols, n_rows, 
         if cb <= ca or rb <= ra:
             continue
         nc = cb - ca
+        nr = rb - ra
         inv_s = 1.0 / sigma_px[p]
+        # every sub-spot's column edges, then its row edges, standardised (edge − centre) / σ; the edges are
+        # half-integers, so ca − 0.5 + j is exact
+        m = 0
         for k in range(n_k):
-            _axis_profile(ca - 0.5, nc, sub_xy[p, k, 0], inv_s, gx[k])
-            _axis_profile(ra - 0.5, rb - ra, sub_xy[p, k, 1], inv_s, gy[k])
+            cx = sub_xy[p, k, 0]
+            for j in range(nc + 1):
+                t_edge[m + j] = (ca - 0.5 + j - cx) * inv_s
+            m += nc + 1
+        for k in range(n_k):
+            cy = sub_xy[p, k, 1]
+            for i in range(nr + 1):
+                t_edge[m + i] = (ra - 0.5 + i - cy) * inv_s
+            m += nr + 1
+        _edge_tails(t_edge, q_edge, m)  # each edge's Q once, shared by the two pixels it bounds
+        for k in range(n_k):
+            _edge_fractions(t_edge, q_edge, k * (nc + 1), nc, gx[k])
+            _edge_fractions(t_edge, q_edge, n_k * (nc + 1) + k * (nr + 1), nr, gy[k])
             wk = sub_w[p, k]
             for i in range(rb - ra):
                 gy[k, i] *= wk

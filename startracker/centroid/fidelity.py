@@ -132,7 +132,9 @@ def _spot_theory(s_units, gain, f2, sigma, sigma_o, c_splash, length, var_b, thr
     """:func:`startracker.kernels.centroid.spot_theory` (the model is in its docstring) for arrays of spots,
     as a dict of (P,) arrays keyed by ``THEORY_COLUMNS``: p_det, ph/bg/lock for along and cross, var_along,
     var_cross, cap (captured e⁻), var_cap, area, peak (e⁻)."""
-    s_units, length, var_b, thr_e = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), np.shape(s_units)))
+    # writable copies: a read-only array (a broadcast view) is another numba type, compiled again besides the one
+    # the centroid kernel passes
+    s_units, length, var_b, thr_e = (np.array(np.broadcast_to(np.asarray(v, dtype=np.float64), np.shape(s_units)))
                                      for v in (s_units, length, var_b, thr_e))
     cols = ck.spot_theory(s_units, float(gain), float(f2), float(sigma), float(sigma_o), float(c_splash), length, var_b,
                           thr_e, _factor_vector(err), bool(intensified))

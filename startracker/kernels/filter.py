@@ -934,9 +934,14 @@ def fuse_frame_timed(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_ch
     if stat > timing_chi2_max:
         return stat, loose, False, t_s, 0, 0
     # Φ and Q: the second pass propagates at least once more (to tm[0] > t0, or to tg[-1] > t_s), so it sets them
-    q[:] = q0
-    b[:] = b0
-    P[:] = P0
+    # element by element: a slice assignment `q[:] = q0` compiles numba's shape check and its error message (~3 s)
+    for i in range(4):
+        q[i] = q0[i]
+    for i in range(3):
+        b[i] = b0[i]
+    for i in range(6):
+        for j in range(6):
+            P[i, j] = P0[i, j]
     t, n_acc, n_prop = fuse_frame(q, b, P, t0, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd,
                                   z_last, rate_noise, nis_out, z_out, s_out)
     return stat, loose, True, t, n_acc, n_pre + n_prop

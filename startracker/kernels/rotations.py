@@ -342,7 +342,9 @@ def interval_rates_rows(t, q):
 
 # ---------------------------------------------------------------------------------------- public kernels
 def _rows(a: np.ndarray, width: int) -> np.ndarray:
-    return np.ascontiguousarray(a, dtype=np.float64).reshape(-1, width)
+    r = np.ascontiguousarray(a, dtype=np.float64).reshape(-1, width)
+    # a read-only array (a frozen constant, a broadcast view) is another numba type: a copy keeps one compilation
+    return r if r.flags.writeable else r.copy()
 
 
 def vector_norm(x: np.ndarray, keepdims: bool = False) -> np.ndarray:

@@ -224,7 +224,13 @@ def render_windows(spots: Spots, hw, n_cols: int, n_rows: int, min_value: float 
     source : ndarray of int, shape (E,)
     """
     n_p = len(spots.sigma)
-    hw_a = np.broadcast_to(np.asarray(hw, dtype=np.int64), (n_p,)).copy()
+    if type(hw) is np.ndarray and hw.dtype == np.int64 and hw.shape == (n_p,) and hw.flags.c_contiguous \
+            and hw.flags.writeable:  # window_half_widths' result (the kernel only reads it): no copy
+        hw_a = hw
+    elif isinstance(hw, (int, np.integer)):
+        hw_a = np.full(n_p, hw, dtype=np.int64)
+    else:
+        hw_a = np.broadcast_to(np.asarray(hw, dtype=np.int64), (n_p,)).copy()
     lin, val, p = render_spot_windows(np.ascontiguousarray(spots.sub_xy, dtype=np.float64),
                                       np.ascontiguousarray(spots.sub_w, dtype=np.float64),
                                       np.ascontiguousarray(spots.sigma, dtype=np.float64), hw_a, int(n_cols),

@@ -164,13 +164,16 @@ def frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
     else:
         paths, total, source = star_paths, star_total, star_source
     optical = _paths_to_spots(paths, total, np.full(len(total), sigma), source, False)
-    table = dict(
-        kind=np.concatenate(kinds),
-        star=np.concatenate(stars),
-        exposure=np.concatenate(expos),
-        xy=np.concatenate(xys),
-        expected_e=np.concatenate(exp_e),
-    )
+    if len(kinds) == 1:  # stars only (most frames): their fresh arrays, no copies
+        table = dict(kind=kinds[0], star=star, exposure=expo, xy=xy, expected_e=exp_star)
+    else:
+        table = dict(
+            kind=np.concatenate(kinds),
+            star=np.concatenate(stars),
+            exposure=np.concatenate(expos),
+            xy=np.concatenate(xys),
+            expected_e=np.concatenate(exp_e),
+        )
     return optical, cosmic, table
 
 

@@ -689,3 +689,28 @@ def test_sparse_gaussian_interpolation_matches_the_full_frame_path():
     truth = np.array(centres)
     for p in xy:
         assert np.min(np.hypot(*(truth - p).T)) < 1e-3
+
+
+def test_truth_labels_gather_the_owners_rows():
+    """truth_labels equals a plain per-detection lookup of the owner's row (no owner: noise kind, −1, −1, NaN)."""
+    from startracker.kernels.centroid_extraction import truth_labels
+
+    rng = np.random.default_rng(11)
+    q = 30
+    kind = rng.integers(0, 5, q).astype(np.int64)
+    star = rng.integers(-1, 100, q).astype(np.int64)
+    expo = rng.integers(-1, 4, q).astype(np.int64)
+    xy = rng.uniform(0, 1000, (q, 2))
+    owner = rng.integers(-1, q, 50).astype(np.int64)
+    owner[:3] = -1
+    t_kind, t_star, t_exp, t_xy = truth_labels(owner, kind, star, expo, xy, 1)
+    for i, o in enumerate(owner):
+        if o < 0:
+            assert (t_kind[i], t_star[i], t_exp[i]) == (1, -1, -1)
+            assert np.isnan(t_xy[i]).all()
+        else:
+            assert (t_kind[i], t_star[i], t_exp[i]) == (kind[o], star[o], expo[o])
+            assert t_xy[i, 0] == xy[o, 0] and t_xy[i, 1] == xy[o, 1]
+    assert t_kind.dtype == t_star.dtype == t_exp.dtype == np.int64
+    empty = truth_labels(np.zeros(0, dtype=np.int64), kind, star, expo, xy, 1)
+    assert [len(a) for a in empty] == [0, 0, 0, 0] and empty[3].shape == (0, 2)

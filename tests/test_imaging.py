@@ -636,3 +636,39 @@ def test_frame_star_spots_equal_the_numpy_formulation(n_samples):
     assert 0 < inside.sum() < n * m
     assert np.array_equal(source, np.flatnonzero(inside))
     assert np.array_equal(paths, p[inside]) and np.array_equal(total, np.tile(pe, n)[inside])
+
+
+@pytest.mark.parametrize("gradient", [(0.0, 0.0), (0.004, -0.003)])
+def test_sparse_source_table_appends_hot_pixels_and_crossings(gradient):
+    """sparse_source_table: the spots' rows unchanged, then one row per hot pixel and per crossing at its pixel
+    centre, the crossing's charge its DN in e⁻ less BackgroundField.mean_e there (flat and sloped sky)."""
+    from startracker.imaging import BackgroundField
+    from startracker.kernels.imaging import sparse_source_table
+
+    rng = np.random.default_rng(4)
+    n_cols, n_rows = 640, 480
+    q0 = 12
+    kind = rng.integers(0, 5, q0).astype(np.int64)
+    star = rng.integers(-1, 50, q0).astype(np.int64)
+    expo = rng.integers(-1, 3, q0).astype(np.int64)
+    xy = rng.uniform(0, 400, (q0, 2))
+    exp_e = rng.uniform(0, 1e4, q0)
+    hot = np.sort(rng.choice(n_cols * n_rows, 5, replace=False)).astype(np.int64)
+    hot_e = rng.uniform(10, 100, 5)
+    f_lin = rng.choice(n_cols * n_rows, 7, replace=False).astype(np.int64)
+    f_dn = rng.uniform(120, 200, 7)
+    bg = BackgroundField(opt0=40.0, opt_dx=gradient[0], opt_dy=gradient[1], cx=319.5, cy=239.5, dark_e=3.0,
+                         integration_s=0.1, gain=2.5, enf2_c=3.0, read_var_e2=4.0, prnu_sigma=0.01, gain_e_per_dn=1.7,
+                         bias_dn=100.0, blinded=False)
+    k, s, e, t_xy, t_e = sparse_source_table(kind, star, expo, xy, exp_e, hot, hot_e, f_lin, f_dn, n_cols, 2, 1, 100.0,
+                                             1.7, bg.opt0, bg.opt_dx, bg.opt_dy, bg.cx, bg.cy, bg.gain, bg.dark_e)
+    n = q0 + 5 + 7
+    assert len(k) == len(s) == len(e) == len(t_e) == n and t_xy.shape == (n, 2)
+    np.testing.assert_array_equal(k, np.r_[kind, [2] * 5, [1] * 7])
+    np.testing.assert_array_equal(s, np.r_[star, [-1] * 12])
+    np.testing.assert_array_equal(e, np.r_[expo, [-1] * 12])
+    cols = np.r_[hot % n_cols, f_lin % n_cols]
+    rows = np.r_[hot // n_cols, f_lin // n_cols]
+    np.testing.assert_array_equal(t_xy, np.r_[xy, np.column_stack([cols, rows]).astype(float)])
+    fc, fr = f_lin % n_cols, f_lin // n_cols
+    np.testing.assert_array_equal(t_e, np.r_[exp_e, hot_e, (f_dn - 100.0) * 1.7 - bg.mean_e(fc, fr)])

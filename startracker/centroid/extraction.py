@@ -31,7 +31,8 @@ import numpy as np
 from scipy import ndimage
 
 from startracker.imaging import KIND_NOISE, KIND_STAR, SparseFrame
-from startracker.kernels.centroid_extraction import detect_sparse, gaussian_refine, measure_components, rank_components
+from startracker.kernels.centroid_extraction import (detect_sparse, gaussian_refine, measure_components, rank_components,
+                                                    truth_labels)
 
 __all__ = [
     "Centroids",
@@ -392,10 +393,5 @@ def detections_from_sparse(sf, method: str = "com", *, min_area_px: int = 1, psf
     if len(o) == 0:
         return Centroids.empty(bg_c, sig_c, with_truth=True)
     srcs = sf.sources
-    has = o >= 0
-    oo = np.maximum(o, 0)
-    t_kind = np.where(has, srcs.kind[oo], KIND_NOISE)
-    t_star = np.where(has, srcs.star[oo], -1)
-    t_exp = np.where(has, srcs.exposure[oo], -1)
-    t_xy = np.where(has[:, None], srcs.xy[oo], np.nan)
+    t_kind, t_star, t_exp, t_xy = truth_labels(o, srcs.kind, srcs.star, srcs.exposure, srcs.xy, KIND_NOISE)
     return Centroids(xy, inten, area, sat, peak, snr, bg_c, sig_c, t_star, t_exp, t_kind, t_xy)

@@ -35,6 +35,7 @@ from startracker.kernels.imaging import (
     place_false_pixels,
     sparse_pixel_set,
     sparse_pixels_to_dn,
+    sparse_source_table,
 )
 from startracker.validation import check_real, check_rng
 from startracker.imaging.spots import (
@@ -398,26 +399,6 @@ def _false_pixel_cells(bg: BackgroundField, k_sigma: float, n_cols: int, n_rows:
     return value
 
 
-_HOT_ROWS: dict = {}
-
-
-def _hot_source_rows(hot_idx: np.ndarray, n_cols: int):
-    """The hot pixels' fixed source-table columns: kind, −1 (star and exposure), xy (H, 2) px; built once per
-    detector (``hot_idx`` is the fixed pattern's cached array, held here so that its id stays its own)."""
-    key = (id(hot_idx), n_cols)
-    hit = _HOT_ROWS.get(key)
-    if hit is not None and hit[0] is hot_idx:
-        return hit[1]
-    hr, hc = np.divmod(hot_idx, n_cols)
-    value = (np.full(len(hot_idx), KIND_HOT_PIXEL), np.full(len(hot_idx), -1), np.stack([hc, hr], 1).astype(float))
-    for a in value:
-        a.flags.writeable = False
-    if len(_HOT_ROWS) > 16:
-        _HOT_ROWS.clear()
-    _HOT_ROWS[key] = (hot_idx, value)
-    return value
-
-
 # shared empty results (nothing can be written into them; writable, like the kernel's outputs: one signature)
 _NO_FALSE_LIN = np.zeros(0, dtype=np.int64)
 _NO_FALSE_DN = np.zeros(0)
@@ -495,7 +476,6 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
             f_dn = f_dn[first]
     else:
         f_lin, f_dn = empty_i, empty_f
-    n_false = len(f_lin)
 
     index = _PixelIndex(n_px, prnu)
     uniq, inv, all_src, all_exp, spot_u, dir_u, hot_u, false_u, prnu_u = sparse_pixel_set(
@@ -512,23 +492,12 @@ def render_sparse(scene: Scene, model: SensorModel, rng: np.random.Generator, k_
         float(model.bias_dn), float(model.adc_max_dn), float(k_sigma))
 
     # source table: stars, debris, cosmic rays (from frame_spots), hot pixels, background crossings
-    hot_kind, hot_none, hot_xy = _hot_source_rows(hot_idx, n_cols)
-    if n_false:
-        fr, fc = np.divmod(f_lin, n_cols)
-        f_e = (f_dn - model.bias_dn) * model.gain_e_per_dn - bg.mean_e(fc, fr)
-        kind_tail = np.concatenate([hot_kind, np.full(n_false, KIND_NOISE)])
-        none_tail = np.full(n_hot + n_false, -1)
-        xy_tail = np.concatenate([hot_xy, np.stack([fc, fr], 1).astype(float)])
-        e_tail = np.concatenate([hot_e_all, f_e])
-    else:  # most frames: no crossing outside the windows
-        kind_tail, none_tail, xy_tail, e_tail = hot_kind, hot_none, hot_xy, hot_e_all
-    sources = SourceTable(
-        kind=np.concatenate([table["kind"], kind_tail]).astype(np.int64, copy=False),
-        star=np.concatenate([table["star"], none_tail]).astype(np.int64, copy=False),
-        exposure=np.concatenate([table["exposure"], none_tail]).astype(np.int64, copy=False),
-        xy=np.concatenate([table["xy"], xy_tail]),
-        expected_e=np.concatenate([table["expected_e"], e_tail]),
-    )
+    kind, star, expo, xy, exp_e = sparse_source_table(
+        table["kind"], table["star"], table["exposure"], table["xy"], table["expected_e"], hot_idx,
+        np.asarray(hot_e_all, dtype=np.float64), f_lin, f_dn, n_cols, KIND_HOT_PIXEL, KIND_NOISE,
+        float(model.bias_dn), float(model.gain_e_per_dn), float(bg.opt0), float(bg.opt_dx), float(bg.opt_dy),
+        float(bg.cx), float(bg.cy), float(bg.gain), float(bg.dark_e))
+    sources = SourceTable(kind=kind, star=star, exposure=expo, xy=xy, expected_e=exp_e)
     return SparseFrame(
         shape=(n_rows, n_cols),
         lin=uniq,

@@ -164,13 +164,16 @@ def frame_spots(scene: Scene, model: SensorModel, fo: FalseObjects):
     else:
         paths, total, source = star_paths, star_total, star_source
     optical = _paths_to_spots(paths, total, np.full(len(total), sigma), source, False)
-    table = dict(
-        kind=np.concatenate(kinds),
-        star=np.concatenate(stars),
-        exposure=np.concatenate(expos),
-        xy=np.concatenate(xys),
-        expected_e=np.concatenate(exp_e),
-    )
+    if len(kinds) == 1:  # stars only (most frames): their fresh arrays, no copies
+        table = dict(kind=kinds[0], star=star, exposure=expo, xy=xy, expected_e=exp_star)
+    else:
+        table = dict(
+            kind=np.concatenate(kinds),
+            star=np.concatenate(stars),
+            exposure=np.concatenate(expos),
+            xy=np.concatenate(xys),
+            expected_e=np.concatenate(exp_e),
+        )
     return optical, cosmic, table
 
 
@@ -224,7 +227,13 @@ def render_windows(spots: Spots, hw, n_cols: int, n_rows: int, min_value: float 
     source : ndarray of int, shape (E,)
     """
     n_p = len(spots.sigma)
-    hw_a = np.broadcast_to(np.asarray(hw, dtype=np.int64), (n_p,)).copy()
+    if type(hw) is np.ndarray and hw.dtype == np.int64 and hw.shape == (n_p,) and hw.flags.c_contiguous \
+            and hw.flags.writeable:  # window_half_widths' result (the kernel only reads it): no copy
+        hw_a = hw
+    elif isinstance(hw, (int, np.integer)):
+        hw_a = np.full(n_p, hw, dtype=np.int64)
+    else:
+        hw_a = np.broadcast_to(np.asarray(hw, dtype=np.int64), (n_p,)).copy()
     lin, val, p = render_spot_windows(np.ascontiguousarray(spots.sub_xy, dtype=np.float64),
                                       np.ascontiguousarray(spots.sub_w, dtype=np.float64),
                                       np.ascontiguousarray(spots.sigma, dtype=np.float64), hw_a, int(n_cols),

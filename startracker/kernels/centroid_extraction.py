@@ -23,6 +23,7 @@ __all__ = [
     "gaussian_refine",
     "rank_components",
     "detect_sparse",
+    "truth_labels",
 ]
 
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
@@ -456,3 +457,47 @@ def detect_sparse(lin, dn, background_dn, threshold_dn, saturation_dn, k_sigma, 
         xy[i, 0] = x[keep[i]]
         xy[i, 1] = y[keep[i]]
     return xy, inten[keep], area[keep], sat[keep], peak[keep], snr, owner[keep]
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def truth_labels(owner, kind, star, exposure, xy, kind_none):
+    """The source-table rows of detections' owners: their truth labels.
+
+    Parameters
+    ----------
+    owner : ndarray of int64, shape (K,)
+        Source id of each detection (:func:`detect_sparse`), −1 for none.
+    kind, star, exposure : ndarray of int64, shape (Q,)
+        The source table's kind code, scene star index and exposure index.
+    xy : ndarray, shape (Q, 2)
+        The sources' time-averaged positions, px.
+    kind_none : int
+        Kind code of a detection without an owner (``startracker.imaging.KIND_NOISE``).
+
+    Returns
+    -------
+    t_kind, t_star, t_exposure : ndarray of int64, shape (K,)
+        The owner's columns; ``kind_none``, −1, −1 without an owner.
+    t_xy : ndarray, shape (K, 2)
+        The owner's position, px; NaN without an owner.
+    """
+    n = len(owner)
+    t_kind = np.empty(n, dtype=np.int64)
+    t_star = np.empty(n, dtype=np.int64)
+    t_exp = np.empty(n, dtype=np.int64)
+    t_xy = np.empty((n, 2))
+    for i in range(n):
+        o = owner[i]
+        if o >= 0:
+            t_kind[i] = kind[o]
+            t_star[i] = star[o]
+            t_exp[i] = exposure[o]
+            t_xy[i, 0] = xy[o, 0]
+            t_xy[i, 1] = xy[o, 1]
+        else:
+            t_kind[i] = kind_none
+            t_star[i] = -1
+            t_exp[i] = -1
+            t_xy[i, 0] = np.nan
+            t_xy[i, 1] = np.nan
+    return t_kind, t_star, t_exp, t_xy

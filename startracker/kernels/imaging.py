@@ -29,6 +29,7 @@ __all__ = [
     "spots_from_paths",
     "frame_star_spots",
     "split_pixel_index",
+    "sparse_source_table",
 ]
 
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
@@ -936,3 +937,86 @@ def frame_star_spots(xy_path, pe_star, gain, x_lo, x_hi, y_lo, y_hi):
             source[e] = r
             e += 1
     return star, expo, xy, exp_e, paths, total, source
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def sparse_source_table(kind, star, exposure, xy, expected_e, hot_idx, hot_e, f_lin, f_dn, n_cols, kind_hot,
+                        kind_noise, bias_dn, gain_e_per_dn, opt0, opt_dx, opt_dy, cx, cy, gain, dark_e):
+    """A sparse frame's source table: the spots' sources, then the hot pixels, then the background crossings.
+
+    Parameters
+    ----------
+    kind, star, exposure : ndarray of int64, shape (Q0,)
+        The spots' sources (stars, debris, cosmic rays): kind code, scene star index, exposure index.
+    xy : ndarray, shape (Q0, 2)
+        Their time-averaged positions, px.
+    expected_e : ndarray, shape (Q0,)
+        Their expected charge, e⁻.
+    hot_idx : ndarray of int64, shape (H,)
+        Linear indices ``row * n_cols + col`` of the hot pixels.
+    hot_e : ndarray, shape (H,)
+        Their extra dark charge, e⁻.
+    f_lin : ndarray of int64, shape (F,)
+        Linear indices of the background's threshold crossings.
+    f_dn : ndarray, shape (F,)
+        Their values, DN.
+    n_cols : int
+        Detector width, px.
+    kind_hot, kind_noise : int
+        Kind codes of a hot pixel and of a crossing.
+    bias_dn, gain_e_per_dn : float
+        DN offset and e⁻ per DN.
+    opt0, opt_dx, opt_dy, cx, cy, gain, dark_e : float
+        The background field (:class:`startracker.imaging.BackgroundField`): optical photoelectrons at ``(cx, cy)``
+        and their gradient per px, intensifier gain, dark charge e⁻.
+
+    Returns
+    -------
+    kind, star, exposure : ndarray of int64, shape (Q0 + H + F,)
+        −1 star and exposure for the hot pixels and crossings.
+    xy : ndarray, shape (Q0 + H + F, 2)
+        Pixel centres (column, row) of the hot pixels and crossings, px.
+    expected_e : ndarray, shape (Q0 + H + F,)
+        Crossings: their charge above the expected background, ``(DN − bias) g − mean_e``, e⁻.
+    """
+    q0 = len(kind)
+    n_hot = len(hot_idx)
+    n_f = len(f_lin)
+    q = q0 + n_hot + n_f
+    t_kind = np.empty(q, dtype=np.int64)
+    t_star = np.empty(q, dtype=np.int64)
+    t_exp = np.empty(q, dtype=np.int64)
+    t_xy = np.empty((q, 2))
+    t_e = np.empty(q)
+    for i in range(q0):
+        t_kind[i] = kind[i]
+        t_star[i] = star[i]
+        t_exp[i] = exposure[i]
+        t_xy[i, 0] = xy[i, 0]
+        t_xy[i, 1] = xy[i, 1]
+        t_e[i] = expected_e[i]
+    for h in range(n_hot):
+        i = q0 + h
+        t_kind[i] = kind_hot
+        t_star[i] = -1
+        t_exp[i] = -1
+        t_xy[i, 0] = float(hot_idx[h] % n_cols)
+        t_xy[i, 1] = float(hot_idx[h] // n_cols)
+        t_e[i] = hot_e[h]
+    flat = opt_dx == 0.0 and opt_dy == 0.0
+    for f in range(n_f):
+        i = q0 + n_hot + f
+        c = f_lin[f] % n_cols
+        r = f_lin[f] // n_cols
+        t_kind[i] = kind_noise
+        t_star[i] = -1
+        t_exp[i] = -1
+        t_xy[i, 0] = float(c)
+        t_xy[i, 1] = float(r)
+        # the expected background as BackgroundField.mean_e evaluates it (same operations, same order)
+        if flat:
+            opt = max(opt0, 0.0)
+        else:
+            opt = max(opt0 + opt_dx * (float(c) - cx) + opt_dy * (float(r) - cy), 0.0)
+        t_e[i] = (f_dn[f] - bias_dn) * gain_e_per_dn - (gain * opt + dark_e)
+    return t_kind, t_star, t_exp, t_xy, t_e

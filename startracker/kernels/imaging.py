@@ -90,6 +90,26 @@ def split_pixel_index(px, n_cols, inv_cols):
     return r, c
 
 
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True, inline="always")
+def _hart_terms(t):
+    """Numerator and denominator of Hart's rational for ``Q(t)``, ``0 <= t < 7.07`` (Horner; the denominator is
+    >= 440). Inlined where it is used, so :func:`_edge_tails`' loop over them still vectorises."""
+    n = 3.52624965998911e-02 * t + 0.700383064443688
+    n = n * t + 6.37396220353165
+    n = n * t + 33.912866078383
+    n = n * t + 112.079291497871
+    n = n * t + 221.213596169931
+    n = n * t + 220.206867912376
+    d = 8.83883476483184e-02 * t + 1.75566716318264
+    d = d * t + 16.064177579207
+    d = d * t + 86.7807322029461
+    d = d * t + 296.564248779674
+    d = d * t + 637.333633378831
+    d = d * t + 793.826512519948
+    d = d * t + 440.413735824752
+    return n, d
+
+
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
 def _upper_tail_hart(t):
     """``Q(t)`` for ``t >= 0`` by Hart's rational approximation (West 2005): absolute error < 2e-16 (relative
@@ -97,19 +117,7 @@ def _upper_tail_hart(t):
     absolute error matters."""
     e = math.exp(-0.5 * t * t)
     if t < 7.07106781186547:
-        n = 3.52624965998911e-02 * t + 0.700383064443688
-        n = n * t + 6.37396220353165
-        n = n * t + 33.912866078383
-        n = n * t + 112.079291497871
-        n = n * t + 221.213596169931
-        n = n * t + 220.206867912376
-        d = 8.83883476483184e-02 * t + 1.75566716318264
-        d = d * t + 16.064177579207
-        d = d * t + 86.7807322029461
-        d = d * t + 296.564248779674
-        d = d * t + 637.333633378831
-        d = d * t + 793.826512519948
-        d = d * t + 440.413735824752
+        n, d = _hart_terms(t)
         return e * n / d
     b = t + 0.65
     b = t + 4.0 / b
@@ -134,19 +142,7 @@ def _edge_tails(t, q, m):
     far = 0
     for i in range(m):
         a = abs(t[i])
-        n = 3.52624965998911e-02 * a + 0.700383064443688
-        n = n * a + 6.37396220353165
-        n = n * a + 33.912866078383
-        n = n * a + 112.079291497871
-        n = n * a + 221.213596169931
-        n = n * a + 220.206867912376
-        d = 8.83883476483184e-02 * a + 1.75566716318264
-        d = d * a + 16.064177579207
-        d = d * a + 86.7807322029461
-        d = d * a + 296.564248779674
-        d = d * a + 637.333633378831
-        d = d * a + 793.826512519948
-        d = d * a + 440.413735824752
+        n, d = _hart_terms(a)
         q[i] = q[i] * n / d
         far += not a < 7.07106781186547  # a count, not a branch: the loop stays vectorised
     if far > 0:

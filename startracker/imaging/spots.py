@@ -230,9 +230,7 @@ def render_windows(spots: Spots, hw, n_cols: int, n_rows: int, min_value: float 
     if type(hw) is np.ndarray and hw.dtype == np.int64 and hw.shape == (n_p,) and hw.flags.c_contiguous \
             and hw.flags.writeable:  # window_half_widths' result (the kernel only reads it): no copy
         hw_a = hw
-    elif isinstance(hw, (int, np.integer)):
-        hw_a = np.full(n_p, hw, dtype=np.int64)
-    else:
+    else:  # a scalar or another layout: one writable int64 array, the kernel's one signature
         hw_a = np.broadcast_to(np.asarray(hw, dtype=np.int64), (n_p,)).copy()
     lin, val, p = render_spot_windows(np.ascontiguousarray(spots.sub_xy, dtype=np.float64),
                                       np.ascontiguousarray(spots.sub_w, dtype=np.float64),

@@ -915,11 +915,7 @@ def pyramid_search(v, ang, tol, triads, cheap_first, pool, nav, s_ang, kk, a1, b
                     cbc = nav[b, 0] * nav[c, 0] + nav[b, 1] * nav[c, 1] + nav[b, 2] * nav[c, 2]
                     if cbc > cos_hi or cbc < cos_lo:
                         continue
-                    # triple_product's expression on the rows' elements: the read-only catalogue's rows would be
-                    # another argument type, compiled again
-                    s_cat = (nav[a, 0] * (nav[b, 1] * nav[c, 2] - nav[b, 2] * nav[c, 1])
-                             - nav[a, 1] * (nav[b, 0] * nav[c, 2] - nav[b, 2] * nav[c, 0])
-                             + nav[a, 2] * (nav[b, 0] * nav[c, 1] - nav[b, 1] * nav[c, 0]))
+                    s_cat = triple_product(nav[a], nav[b], nav[c])
                     if (s_cat > 0) != (s_meas > 0):
                         continue
                     if h == hyp.shape[0]:

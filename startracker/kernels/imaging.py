@@ -90,6 +90,12 @@ def split_pixel_index(px, n_cols, inv_cols):
     return r, c
 
 
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _optical_pe(opt0, opt_dx, opt_dy, cx, cy, x, y):
+    """The planar optical background at (x, y) px, photoelectrons, >= 0 (``BackgroundField.optical_pe``)."""
+    return max(opt0 + opt_dx * (x - cx) + opt_dy * (y - cy), 0.0)
+
+
 @njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True, inline="always")
 def _hart_terms(t):
     """Numerator and denominator of Hart's rational for ``Q(t)``, ``0 <= t < 7.07`` (Horner; the denominator is
@@ -631,7 +637,7 @@ def sparse_pixels_to_dn(intensified, spot_e, prnu_u, lin, z, charge_e, direct_e,
     inv_cols = 1.0 / n_cols
     for i in range(u):
         r, c = split_pixel_index(lin[i], n_cols, inv_cols)
-        o = max(opt0 + opt_dx * (c - cx) + opt_dy * (r - cy), 0.0)
+        o = _optical_pe(opt0, opt_dx, opt_dy, cx, cy, float(c), float(r))
         q_bg = gain * o
         mean[i] = (q_bg + dark_e) / gain_e_per_dn + bias_dn
         var = enf2_c * q_bg + dark_e + read_var_e2 + (prnu_sigma * q_bg) ** 2
@@ -690,7 +696,7 @@ def false_pixel_cells(col_edges, row_edges, opt0, opt_dx, opt_dy, cx, cy, gain, 
         for i in range(gx):
             xc = 0.5 * (col_edges[i] + col_edges[i + 1])
             n_c = math.floor(col_edges[i + 1] + 0.5) - math.floor(col_edges[i] + 0.5)
-            q = gain * max(opt0 + opt_dx * (xc - cx) + opt_dy * (yc - cy), 0.0)
+            q = gain * _optical_pe(opt0, opt_dx, opt_dy, cx, cy, xc, yc)
             mu = q + dark_e
             var = enf2_c * q + dark_e + read_var_e2 + (prnu_sigma * q) ** 2
             sd = math.sqrt(var)
@@ -999,7 +1005,6 @@ def sparse_source_table(kind, star, exposure, xy, expected_e, hot_idx, hot_e, f_
         t_xy[i, 0] = float(hot_idx[h] % n_cols)
         t_xy[i, 1] = float(hot_idx[h] // n_cols)
         t_e[i] = hot_e[h]
-    flat = opt_dx == 0.0 and opt_dy == 0.0
     for f in range(n_f):
         i = q0 + n_hot + f
         c = f_lin[f] % n_cols
@@ -1009,10 +1014,7 @@ def sparse_source_table(kind, star, exposure, xy, expected_e, hot_idx, hot_e, f_
         t_exp[i] = -1
         t_xy[i, 0] = float(c)
         t_xy[i, 1] = float(r)
-        # the expected background as BackgroundField.mean_e evaluates it (same operations, same order)
-        if flat:
-            opt = max(opt0, 0.0)
-        else:
-            opt = max(opt0 + opt_dx * (float(c) - cx) + opt_dy * (float(r) - cy), 0.0)
-        t_e[i] = (f_dn[f] - bias_dn) * gain_e_per_dn - (gain * opt + dark_e)
+        # the expected background, BackgroundField.mean_e (its flat case is the same value: the gradient terms are 0)
+        t_e[i] = (f_dn[f] - bias_dn) * gain_e_per_dn - (gain * _optical_pe(opt0, opt_dx, opt_dy, cx, cy, float(c), float(r))
+                                                        + dark_e)
     return t_kind, t_star, t_exp, t_xy, t_e

@@ -280,6 +280,8 @@ class AgileSlewEnv(gym.Env):
         high = np.concatenate([[np.pi] * 3, [w_max] * 3, [1.0] * nw, [1.0] * 3, [np.pi]]).astype(np.float32)
         self.observation_space = spaces.Box(low=low, high=high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (nw,), dtype=np.float32)
+        self._action_shape = self.action_space.shape
+        self._wheel_max_torque_Nm = self.spacecraft.wheel_max_torque_Nm  # a copy, fixed for the env's life
         self._q_target = np.array([1.0, 0.0, 0.0, 0.0])
         self._disturbance_world = np.zeros(3)
         self._settled_s = 0.0
@@ -393,42 +395,38 @@ class AgileSlewEnv(gym.Env):
 
     def step(self, action):
         a = np.asarray(action, dtype=np.float64)
-        if a.shape != self.action_space.shape:
+        if a.shape != self._action_shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
-        if not np.isfinite(a).all():
+        a_list = a.tolist()  # a few floats: Python's scalar arithmetic beats numpy's dispatch on them
+        if not all(map(math.isfinite, a_list)):
             raise ValueError("action contains NaN or inf")
-        a = np.minimum(np.maximum(a, -1.0), 1.0)  # finite: the same as np.clip, without its dispatch
-        self.spacecraft.apply_wheel_torque(a * self.spacecraft.wheel_max_torque_Nm, validate=False)  # a is checked
-        # the env steps the physics and records the truth; the avionics observe it
+        a_list = [min(max(v, -1.0), 1.0) for v in a_list]  # finite: np.clip's values
+        sc = self.spacecraft
+        sc.apply_wheel_torque(np.array(a_list) * self._wheel_max_torque_Nm, validate=False)  # a is checked
+        # the env steps the physics and records the truth (with its starting instant); the avionics observe it
         dt_gyro = self.avionics.gyro_period_s
-        t0, q0 = self.spacecraft.time_s, self.spacecraft.q_body_to_icrs
-        t_rec, q_rec = self.spacecraft.step_recording(dt_gyro, int(round(self.control_period_s / dt_gyro)))
-        n_rec = len(t_rec)
-        t_obs = np.empty(n_rec + 1)
-        t_obs[0] = t0
-        t_obs[1:] = t_rec
-        q_obs = np.empty((n_rec + 1, 4))
-        q_obs[0] = q0
-        q_obs[1:] = q_rec
+        t_obs, q_obs = sc.step_recording(dt_gyro, int(round(self.control_period_s / dt_gyro)), include_start=True)
         self.avionics.observe(t_obs, q_obs, self.np_random)
 
-        q_true = self.spacecraft.q_body_to_icrs
-        # quat_angle_between's row loop on the env's own float64 (4,) state, without its reshaping wrapper
-        err = float(rk.angle_between_rows(q_true.reshape(1, 4), self._q_target.reshape(1, 4))[0])
-        rate = math.sqrt(sum(w * w for w in self.spacecraft.omega_body.tolist()))
+        q_true = sc.q_body_to_icrs
+        est = self.avionics.estimate()  # one fresh estimate for the observation and the info
+        # the step's attitude errors in one compiled call (pointing, estimation, the observed error, the NEES's)
+        figures = rk.pointing_errors(q_true, est.q_body_to_icrs, self._q_target).tolist()
+        err = figures[0]
+        w0, w1, w2 = sc.omega_body.tolist()
+        rate = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
         dt = self.control_period_s
         settled_now = err <= self.settle_tolerance_rad and rate <= self.settle_rate_rad_s
         self._settled_s = self._settled_s + dt if settled_now else 0.0
         r_point = -self.w_pointing * err * dt
         # mean of the squared commands, summed left to right as numpy does for a few elements
-        r_effort = -self.w_effort * (sum(x * x for x in a.tolist()) / len(a)) * dt
+        r_effort = -self.w_effort * (sum(x * x for x in a_list) / len(a_list)) * dt
         r_settle = self.w_settle * dt if settled_now else 0.0
         reward = r_point + r_effort + r_settle
         terminated = self.task == "slew" and self._settled_s >= self.settle_hold_s - 1e-9
-        truncated = self.spacecraft.time_s >= self.max_episode_s - 1e-9
-        est = self.avionics.estimate()  # one fresh estimate for the observation and the info
-        obs = self._observation(est)
-        info = self._info((r_point, r_effort, r_settle), est, q_true, err)
+        truncated = sc.time_s >= self.max_episode_s - 1e-9
+        obs = self._observation(est, figures)
+        info = self._info((r_point, r_effort, r_settle), est, q_true, err, figures)
         return obs, float(reward), bool(terminated), bool(truncated), self.select_info(info)
 
     def render(self):
@@ -437,31 +435,30 @@ class AgileSlewEnv(gym.Env):
         return self.avionics.render_last_frame()
 
     # ------------------------------------------------------------------ internals
-    def _observation(self, est=None) -> np.ndarray:
+    def _observation(self, est=None, figures=None) -> np.ndarray:
+        """The observation of ``est`` (a fresh estimate when None); ``figures``: :func:`rk.pointing_errors` of the
+        step as a list, when the step has it."""
         if est is None:
             est = self.avionics.estimate()
-        # error rotation vector (3), rate (3), wheel momentum fractions (W), tracker mode one-hot (3), σ (1);
-        # filled in place, each float64 value rounded to float32 once
-        wheels = self.spacecraft.wheel_momentum_fraction
-        n_w = len(wheels)
-        obs = np.empty(10 + n_w, dtype=np.float32)
-        obs[0:3] = rk.relative_rotvec_rows(est.q_body_to_icrs.reshape(1, 4), self._q_target.reshape(1, 4))[0]
+        if figures is None:
+            figures = rk.pointing_errors(self.spacecraft.q_body_to_icrs, est.q_body_to_icrs, self._q_target).tolist()
+        # error rotation vector (3), rate (3), wheel momentum fractions (W), tracker mode one-hot (3), σ (1): Python
+        # floats clipped as np.clip does (max then min), each rounded to float32 once by the array
         w_max = self.avionics.gyro_max_rate_rad_s
-        # np.clip's arithmetic (max then min) without its dispatch
-        obs[3:6] = np.minimum(np.maximum(est.omega_body, -w_max), w_max)
-        obs[6:6 + n_w] = np.minimum(np.maximum(wheels, -1.0), 1.0)
-        obs[6 + n_w:9 + n_w] = 0.0
-        obs[6 + n_w + TRACKER_MODES.index(self.avionics.tracker_mode)] = 1.0
-        obs[9 + n_w] = min(est.attitude_sigma_rad, np.pi)
-        return obs
+        wheels = self.spacecraft.wheel_momentum_fraction.tolist()
+        vals = (figures[2:5] + [min(max(w, -w_max), w_max) for w in est.omega_body.tolist()]
+                + [min(max(h, -1.0), 1.0) for h in wheels] + [0.0, 0.0, 0.0] + [min(est.attitude_sigma_rad, np.pi)])
+        vals[6 + len(wheels) + TRACKER_MODES.index(self.avionics.tracker_mode)] = 1.0
+        return np.array(vals, dtype=np.float32)
 
     @staticmethod
-    def _nees(q_true, est) -> float | None:
-        """Normalised estimation error squared of the EKF attitude (3 dof; mean 3 when consistent), None before a fix."""
+    def _nees(est, d_rad) -> float | None:
+        """Normalised estimation error squared of the EKF attitude (3 dof; mean 3 when consistent), None before a fix;
+        ``d_rad``: the estimate's error rotation vector (3 floats, rad; :func:`rk.pointing_errors`' ``[5:8]``)."""
         p = est.attitude_cov_rad2
         if p is None:
             return None
-        d0, d1, d2 = rk.relative_rotvec_rows(est.q_body_to_icrs.reshape(1, 4), q_true.reshape(1, 4))[0].tolist()
+        d0, d1, d2 = d_rad
         (a, b, c), (_, e, f), (_, _, i) = p.tolist()  # symmetric: d' P⁻¹ d by the adjugate, on scalars
         c00, c01, c02 = e * i - f * f, c * f - b * i, b * f - c * e
         c11, c12, c22 = a * i - c * c, b * c - a * f, a * e - b * b
@@ -470,15 +467,17 @@ class AgileSlewEnv(gym.Env):
              + d2 * (c02 * d0 + c12 * d1 + c22 * d2))
         return float(q / det)
 
-    def _info(self, reward_terms, est=None, q_true=None, pointing_error_rad=None) -> dict:
-        """The step's info; ``est`` (a fresh estimate), ``q_true`` (a copy of the true attitude) and the pointing
-        error (rad) when the step has them already."""
+    def _info(self, reward_terms, est=None, q_true=None, pointing_error_rad=None, figures=None) -> dict:
+        """The step's info; ``est`` (a fresh estimate), ``q_true`` (a copy of the true attitude), the pointing
+        error (rad) and ``figures`` (:func:`rk.pointing_errors` as a list) when the step has them already."""
         if q_true is None:
             q_true = self.spacecraft.q_body_to_icrs
         if est is None:
             est = self.avionics.estimate()
+        if figures is None:
+            figures = rk.pointing_errors(q_true, est.q_body_to_icrs, self._q_target).tolist()
         if pointing_error_rad is None:
-            pointing_error_rad = float(rk.quat_angle_between(q_true, self._q_target))
+            pointing_error_rad = figures[0]
         stats = self.avionics.last_stats
         info = {
             "time_s": float(self.spacecraft.time_s),
@@ -488,8 +487,7 @@ class AgileSlewEnv(gym.Env):
             "estimate_valid": bool(est.valid),
             "q_target": self._q_target.copy(),
             "omega_true_body": self.spacecraft.omega_body,
-            "attitude_error_arcsec": math.degrees(float(rk.angle_between_rows(
-                q_true.reshape(1, 4), est.q_body_to_icrs.reshape(1, 4))[0])) * 3600.0,
+            "attitude_error_arcsec": math.degrees(figures[1]) * 3600.0,
             "pointing_error_deg": math.degrees(pointing_error_rad),
             "update_rate_hz": stats["update_rate_hz"],
             "update_rate_hz_per_head": list(stats["update_rate_hz_per_head"]),
@@ -512,7 +510,7 @@ class AgileSlewEnv(gym.Env):
             "n_confidently_wrong_estimates_total": self.avionics.n_confidently_wrong_estimates_total,
             "reacquisition_times_s": self.avionics.reacquisition_times_s,
             "attitude_sigma_arcsec": math.degrees(min(float(est.attitude_sigma_rad), math.pi)) * 3600.0,
-            "ekf_nees": self._nees(q_true, est),
+            "ekf_nees": self._nees(est, figures[5:8]),
             "reward_pointing": reward_terms[0],
             "reward_effort": reward_terms[1],
             "reward_settle": reward_terms[2],

@@ -369,9 +369,8 @@ class AgileSlewV1Env(AgileSlewEnv):
         cmd = tau_w / sc.wheel_max_torque_Nm
         if self.sensor == "tracker":
             dt_gyro = self.avionics.gyro_period_s
-            t0, q0 = sc.time_s, sc.q_body_to_icrs
-            t_rec, q_rec = sc.step_recording(dt_gyro, int(round(self.control_period_s / dt_gyro)))
-            self.avionics.observe(np.concatenate([[t0], t_rec]), np.concatenate([q0[None], q_rec]), self.np_random)
+            t_obs, q_obs = sc.step_recording(dt_gyro, int(round(self.control_period_s / dt_gyro)), include_start=True)
+            self.avionics.observe(t_obs, q_obs, self.np_random)
         else:
             # the physics substeps of the gyro period, with no recording consumer
             dt_gyro = self.avionics.gyro_period_s

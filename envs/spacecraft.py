@@ -568,7 +568,8 @@ class Spacecraft:
             data.ctrl[:] = ctrl
             mujoco.mj_step(m, data)
 
-    def step_recording(self, substep_s: float, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+    def step_recording(self, substep_s: float, n_steps: int, *, include_start: bool = False
+                       ) -> tuple[np.ndarray, np.ndarray]:
         """Integrate ``n_steps`` substeps of ``substep_s`` with the held commands, recording the truth history.
 
         Equal to ``n_steps`` calls of :meth:`step` (``substep_s`` each), reading :attr:`time_s` and
@@ -583,12 +584,14 @@ class Spacecraft:
             Duration of one recorded substep, s: a positive multiple of :attr:`timestep_s`.
         n_steps : int
             Number of substeps (>= 1).
+        include_start : bool
+            Also record the state before the first substep, as row 0 (the history an observer of the span needs).
 
         Returns
         -------
-        times_s : ndarray, shape (n_steps,)
+        times_s : ndarray, shape (n_steps,), or (n_steps + 1,) with ``include_start``
             Time after each substep, s.
-        q_body_to_icrs : ndarray, shape (n_steps, 4)
+        q_body_to_icrs : ndarray, shape (n_steps, 4), or (n_steps + 1, 4) with ``include_start``
             True attitude after each substep (w, x, y, z).
         """
         if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
@@ -597,9 +600,15 @@ class Spacecraft:
         duration_s = float(substep_s)
         if not (math.isfinite(duration_s) and duration_s > 0.0):
             raise ValueError(f"substep_s must be a positive finite number, got {substep_s!r}")
-        times_out = np.empty(n_steps)
-        quats_out = np.empty((n_steps, 4))
         data, m = self.data, self.model
+        # a view of MjData's own buffer (mj_step writes in place): one slice per span, not one per substep
+        q_now = data.qpos[self._sl_quat]
+        first = 1 if include_start else 0
+        times_out = np.empty(n_steps + first)
+        quats_out = np.empty((n_steps + first, 4))
+        if first:
+            times_out[0] = data.time
+            quats_out[0] = q_now
         speeds = data.qvel[self._sl_wv].tolist()
         tau = self._torque_cmd.tolist()
         wx, wy, wz = data.qvel[self._sl_omega].tolist()
@@ -613,16 +622,14 @@ class Spacecraft:
             abs(sp) + horizon * (abs(tq) / self._i_s + coupling) < smax
             for sp, tq, smax in zip(speeds, tau, self._speed_max_list)
         )
-        # a view of MjData's own buffer (mj_step writes in place): one slice per span, not one per substep
-        q_now = data.qpos[self._sl_quat]
         if fast:
             data.ctrl[:] = self._torque_cmd
-            for k in range(n_steps):
+            for k in range(first, n_steps + first):
                 mujoco.mj_step(m, data)
                 times_out[k] = data.time
                 quats_out[k] = q_now
             return times_out, quats_out
-        for k in range(n_steps):
+        for k in range(first, n_steps + first):
             self.step(duration_s)
             times_out[k] = data.time
             quats_out[k] = q_now

@@ -32,6 +32,7 @@ __all__ = [
     "normalize_rows",
     "interpolate_rows",
     "angle_between_rows",
+    "pointing_errors",
     "quat_to_matrix",
     "quat_rotate",
     "quat_from_rotvec",
@@ -224,6 +225,37 @@ def angle_between_rows(a, b):
         dz = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
         # 2 atan2(|vector part|, |scalar part|) stays accurate for small angles, unlike 2 acos
         out[k] = 2.0 * math.atan2(math.sqrt(dx * dx + dy * dy + dz * dz), abs(dw))
+    return out
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def pointing_errors(q_true, q_est, q_target):
+    """An env step's attitude figures in one call: :func:`angle_between_rows` and :func:`relative_rotvec_rows` on
+    one row each.
+
+    Parameters
+    ----------
+    q_true, q_est, q_target : ndarray, shape (4,)
+        True, estimated and target body-to-ICRS quaternions (w, x, y, z), float64, C-contiguous, non-zero.
+
+    Returns
+    -------
+    ndarray, shape (8,)
+        ``[0]`` the pointing error, angle of ``q_true⁻¹ q_target`` (rad); ``[1]`` the estimation error, angle of
+        ``q_true⁻¹ q_est`` (rad); ``[2:5]`` the rotation vector of ``q_est⁻¹ q_target`` (rad, body frame: the error
+        the controller sees); ``[5:8]`` that of ``q_est⁻¹ q_true`` (rad: the estimate's error, for its NEES).
+    """
+    t = q_true.reshape(1, 4)
+    e = q_est.reshape(1, 4)
+    g = q_target.reshape(1, 4)
+    out = np.empty(8)
+    out[0] = angle_between_rows(t, g)[0]
+    out[1] = angle_between_rows(t, e)[0]
+    r = relative_rotvec_rows(e, g)
+    d = relative_rotvec_rows(e, t)
+    for i in range(3):
+        out[2 + i] = r[0, i]
+        out[5 + i] = d[0, i]
     return out
 
 

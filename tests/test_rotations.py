@@ -118,3 +118,26 @@ def test_product_broadcasts_like_scipy_composition():
     np.testing.assert_allclose(np.linalg.norm(unit, axis=1), 1.0, atol=1e-15)
     assert np.all(unit[:, 0] >= 0)
     np.testing.assert_allclose(rot.quat_to_matrix(unit), Rotation.from_quat(raw[:, xyzw]).as_matrix(), atol=1e-14)
+
+
+def test_pointing_errors_kernel_matches_scipy_rotations():
+    """The env step's attitude figures (startracker.kernels.rotations.pointing_errors) against scipy's Rotation:
+    the angles of q_true⁻¹ q_target and q_true⁻¹ q_est, the rotation vectors of q_est⁻¹ q_target and q_est⁻¹ q_true."""
+    from scipy.spatial.transform import Rotation as R
+    from startracker.kernels.rotations import pointing_errors
+
+    rng = np.random.default_rng(7)
+
+    def scipy_rot(q):  # (w, x, y, z) -> scipy's (x, y, z, w)
+        return R.from_quat([q[1], q[2], q[3], q[0]])
+
+    for _ in range(50):
+        q_true, q_est, q_target = (rng.normal(size=4) for _ in range(3))
+        q_est = q_true + 1e-3 * rng.normal(size=4)  # an estimate near the truth, a target anywhere
+        out = pointing_errors(q_true, q_est, q_target)
+        rt, re, rg = scipy_rot(q_true), scipy_rot(q_est), scipy_rot(q_target)
+        assert out.shape == (8,)
+        assert out[0] == pytest.approx((rt.inv() * rg).magnitude(), abs=1e-12)
+        assert out[1] == pytest.approx((rt.inv() * re).magnitude(), abs=1e-12)
+        assert np.allclose(out[2:5], (re.inv() * rg).as_rotvec(), atol=1e-12)
+        assert np.allclose(out[5:8], (re.inv() * rt).as_rotvec(), atol=1e-12)

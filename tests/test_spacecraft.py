@@ -265,6 +265,15 @@ def test_step_recording_equals_stepping_and_reading():
         assert np.array_equal(t_rec, t_ref) and np.array_equal(q_rec, q_ref)
         assert np.array_equal(a.get_state(), b.get_state())
         assert t_rec.shape == (10,) and q_rec.shape == (10, 4) and np.isclose(t_rec[-1], 1.1)
+        # include_start: the state before the span as row 0, then the same rows
+        c = Spacecraft()
+        c.set_state([0.9, 0.1, -0.2, 0.3], [0.01, -0.02, 0.03], np.full(4, speed0), time_s=1.0)
+        c.apply_wheel_torque(np.full(4, torque))
+        t0, q0 = c.time_s, c.q_body_to_icrs
+        t_all, q_all = c.step_recording(0.01, 10, include_start=True)
+        assert t_all.shape == (11,) and q_all.shape == (11, 4)
+        assert t_all[0] == t0 == 1.0 and np.array_equal(q_all[0], q0)
+        assert np.array_equal(t_all[1:], t_ref) and np.array_equal(q_all[1:], q_ref)
     with pytest.raises(ValueError, match="n_steps"):
         a.step_recording(0.01, 0)
     with pytest.raises(ValueError, match="substep_s"):

@@ -190,20 +190,24 @@ _EMPTY_HOT.setflags(write=False)
 _FRAME_CONSTANTS: dict = {}
 
 
-def _frame_constants(model: SensorModel, camera, err: CentroidErrorModel) -> tuple:
-    """What :func:`draw_centroid_inputs` needs of the (frozen) detector, camera and error model, once per triple:
-    ``(n_cols, n_rows, hot_index, hot_rate, sensor vector, factor vector)`` (a per-frame caller passes the same three
-    objects frame after frame; each lookup of its own costs ~0.3-1 µs)."""
-    key = (id(model), id(camera), id(err))
+def _frame_constants(model: SensorModel, scene: Scene, err: CentroidErrorModel) -> tuple:
+    """What :func:`draw_centroid_inputs` needs of the (frozen) detector, camera, plan and error model, once per
+    quadruple: ``(n_cols, n_rows, hot_index, hot_rate, sensor vector, factor vector, quiet background, its vector)``,
+    the background that of a sky without bright bodies (:func:`startracker.imaging.background_field`). A per-frame
+    caller passes the same objects frame after frame; each lookup of its own costs ~0.3-1 µs."""
+    camera, plan = scene.camera, scene.plan
+    key = (id(model), id(camera), id(err), id(plan))
     hit = _FRAME_CONSTANTS.get(key)
-    if hit is not None and hit[0] is model and hit[1] is camera and hit[2] is err:
-        return hit[3]
+    if hit is not None and hit[0] is model and hit[1] is camera and hit[2] is err and hit[3] is plan:
+        return hit[4]
     n_cols, n_rows = camera.resolution
     _, hot_idx, hot_rate = fixed_pattern(model, camera.resolution)
-    value = (n_cols, n_rows, hot_idx, hot_rate, _sensor_vector(model), _factor_vector(err))
+    quiet = background_field(replace(scene, bright_bodies=()) if scene.bright_bodies else scene, model)
+    value = (n_cols, n_rows, hot_idx, hot_rate, _sensor_vector(model), _factor_vector(err), quiet,
+             _background_vector(quiet))
     if len(_FRAME_CONSTANTS) > 64:
         _FRAME_CONSTANTS.clear()
-    _FRAME_CONSTANTS[key] = (model, camera, err, value)
+    _FRAME_CONSTANTS[key] = (model, camera, err, plan, value)
     return value
 
 
@@ -222,8 +226,10 @@ def draw_centroid_inputs(scene: Scene, model: SensorModel, rng, k_sigma: float, 
     tuple
         ``(xy_path, visible, star_pe, ..., n_cols, n_rows, kinds)``: the 25 arguments of ``centroid_detections``.
     """
-    n_cols, n_rows, hot_idx, hot_rate, sensor_vec, factor_vec = _frame_constants(model, scene.camera, err)
-    bg = background_field(scene, model)
+    n_cols, n_rows, hot_idx, hot_rate, sensor_vec, factor_vec, bg, bg_vec = _frame_constants(model, scene, err)
+    if scene.bright_bodies:  # stray light: this frame's own background
+        bg = background_field(scene, model)
+        bg_vec = _background_vector(bg)
     plan = scene.plan
     tau = plan.exposure_s
     n = plan.n_exposures
@@ -251,7 +257,7 @@ def draw_centroid_inputs(scene: Scene, model: SensorModel, rng, k_sigma: float, 
         hot_idx, hot_rate, z_hot, f_lin, f_dn = _EMPTY_HOT_I, _EMPTY_HOT, _EMPTY_1, _EMPTY_I, _EMPTY_1
     return (scene.xy_path, scene.visible, star_pe, fo.debris_xy0, fo.debris_velocity_px_s, debris_pe, t_start, t_end,
             fo.cosmic_start_xy, fo.cosmic_end_xy, fo.cosmic_e, hot_idx, hot_rate, f_lin, f_dn,
-            u, z, z_hot, _background_vector(bg), sensor_vec, factor_vec, float(k_sigma),
+            u, z, z_hot, bg_vec, sensor_vec, factor_vec, float(k_sigma),
             n_cols, n_rows, _KINDS)
 
 

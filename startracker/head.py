@@ -35,7 +35,7 @@ import numpy as np
 
 from startracker.centroid import Centroids, simulate_detections
 from startracker.imaging import SensorModel, render_frame
-from startracker.scene import compute_scene
+from startracker.scene import compute_scenes
 from startracker.spec import PRESET_NAMES, StarTrackerSpec, as_spec
 
 __all__ = ["MonoHead", "ColorHead", "make_head", "HEAD_CAMERAS", "Centroids", "StarTrackerSpec"]
@@ -143,7 +143,9 @@ class MonoHead:
             What was imaged (for :meth:`render`).
         """
         # the head's own camera, model and plan, and the unit's float64 truth history: checked where they were built
-        scene = compute_scene(self.camera, catalog, truth, plan, t_frame, bright_bodies=bright_bodies, validate=False)
+        # (compute_scene's own body, without its call)
+        scene = compute_scenes((self.camera,), catalog, truth, plan, t_frame, bright_bodies=bright_bodies,
+                               validate=False)[0]
         det = simulate_detections(scene, self.sensor_model, rng, fidelity=fidelity, validate=False)
         return det, scene
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -76,7 +77,7 @@ class Photometry:
         """π D² / 4 in cm²."""
         return math.pi * (0.1 * self.aperture_diameter_mm) ** 2 / 4.0
 
-    @property
+    @cached_property  # the fields are frozen; read every frame (star_pe)
     def pe_per_s_at_v0(self) -> float:
         """Photoelectrons per second from a V = 0, B−V = 0 star."""
         return (

@@ -13,7 +13,7 @@ from functools import cached_property
 import numpy as np
 
 from startracker.imaging.detector import SensorModel
-from startracker.validation import check_rng
+from startracker.validation import build_checked, check_rng
 from startracker.scene import Scene
 
 __all__ = [
@@ -265,23 +265,34 @@ def draw_false_objects(scene: Scene, model: SensorModel, rng: np.random.Generato
     if n_d == 0 and n_c == 0:
         return _NONE
     size = _detector_size(cam)
+    # the arithmetic of the original one-line formulas, in place where an array is this call's own, with the columns
+    # joined by one concatenate (np.stack costs ~3 µs of Python a call): the same operations on the same operands
     if n_d:
         u = rng.random((n_d, 6))  # position (2), direction, log-speed, magnitude, unused
-        xy0 = u[:, :2] * size - 0.5
+        xy0 = u[:, :2] * size
+        xy0 -= 0.5
         ang = 2 * np.pi * u[:, 2]
         speed = np.exp(_LOG_SPEED_LO + _LOG_SPEED_SPAN * u[:, 3])
-        vel = np.stack([np.cos(ang), np.sin(ang)], axis=1) * speed[:, None]
+        vel = np.concatenate(((np.cos(ang) * speed)[:, None], (np.sin(ang) * speed)[:, None]), axis=1)
         vmag = model.debris_vmag_range[0] + (model.debris_vmag_range[1] - model.debris_vmag_range[0]) * u[:, 4]
     else:  # nothing drawn for no debris: the shared empty arrays
         xy0, vel, vmag = _NONE.debris_xy0, _NONE.debris_velocity_px_s, _NONE.debris_vmag
     if n_c:
         v = rng.random((n_c, 4))  # position (2), direction, length
-        start = v[:, :2] * size - 0.5
+        start = v[:, :2] * size
+        start -= 0.5
         a = 2 * np.pi * v[:, 2]
-        end = start + np.stack([np.cos(a), np.sin(a)], axis=1) * (COSMIC_MAX_LEN_PX * v[:, 3])[:, None]
-        charge = model.cosmic_ray_median_e * np.exp(0.6 * rng.standard_normal(n_c))
+        length = COSMIC_MAX_LEN_PX * v[:, 3]
+        end = np.concatenate(((np.cos(a) * length)[:, None], (np.sin(a) * length)[:, None]), axis=1)
+        end += start  # start + the track
+        z = rng.standard_normal(n_c)
+        z *= 0.6
+        charge = np.exp(z)
+        charge *= model.cosmic_ray_median_e
     else:
         start, end, charge = _NONE.cosmic_start_xy, _NONE.cosmic_end_xy, _NONE.cosmic_e
-    return FalseObjects(xy0, vel, vmag, start, end, charge)
+    # the fields set at once (FalseObjects has no checks of its own)
+    return build_checked(FalseObjects, {"debris_xy0": xy0, "debris_velocity_px_s": vel, "debris_vmag": vmag,
+                                        "cosmic_start_xy": start, "cosmic_end_xy": end, "cosmic_e": charge})
 
 

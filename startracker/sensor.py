@@ -486,8 +486,8 @@ class StarTracker:
         # the motion state holds (3, 3) float64 covariances: the kernel of prediction_sigma_px directly
         sigma = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, st.cov_omega,
                                                   self._cov_alpha_total(st), float(horizon), self._f_px, self._rho_max_px)
-        w_cam = np.dot(self._r_body_to_cam, w)  # BLAS gemv like @, without the matmul ufunc machinery
-        travel_px = math.hypot(w_cam[0], w_cam[1]) * period * self._f_px
+        wx, wy, _ = np.dot(self._r_body_to_cam, w).tolist()  # BLAS gemv like @, without the matmul ufunc machinery
+        travel_px = math.hypot(wx, wy) * period * self._f_px
         value = (n_rate, sigma, travel_px)
         self._motion_cache = (st, period, self._last_exp_centre, value)
         return value
@@ -680,16 +680,16 @@ class StarTracker:
         # Gyro readings at this and the previous frame: the rate in between is their interpolation (the
         # slope is the acceleration), with the gyro's error; the unmodelled acceleration change only
         # enters the propagation.
+        lever = st.t_s - t_frame
+        # (kernels.sensor: gyro + alpha lever and var_g + cov lever², rate differences, in one call each)
+        alpha = self._frame_alpha
+        if alpha is not None:
+            # the gyro's own acceleration over this frame: a torque change at the frame's start is in it
+            w, cov_w = sensor_kernels.rate_at(gyro, self._var_gyro, alpha, self._cov_alpha_gyro, lever, lever**2)
+            return w, alpha, cov_w, self._cov_alpha_gyro_total
         var_g = self._var_gyro
         var_proc = self._var_proc
-        lever = st.t_s - t_frame
         prev = st.rate_meas
-        # (kernels.sensor: gyro + alpha lever and var_g + cov lever², rate differences, in one call each)
-        if self._frame_alpha is not None:
-            # the gyro's own acceleration over this frame: a torque change at the frame's start is in it
-            alpha = self._frame_alpha
-            w, cov_w = sensor_kernels.rate_at(gyro, var_g, alpha, self._cov_alpha_gyro, lever, lever**2)
-            return w, alpha, cov_w, self._cov_alpha_gyro_total
         if prev is not None and 0 < t_frame - prev[0] <= self.coast_max_s:
             dt = t_frame - prev[0]
             alpha, cov_a = sensor_kernels.rate_difference(gyro, var_g, prev[1], prev[2], dt, dt**2)
@@ -706,8 +706,10 @@ class StarTracker:
         omega, alpha, cov_w, cov_a = self._propagation(st, gyro, t_frame)
         if extra_cov_alpha is not None:
             cov_a = cov_a + extra_cov_alpha
-        # the largest propagation time of the frame is at one of its ends (t_exp increases)
-        horizon = max(abs(float(t_exp[0]) - st.t_s), abs(float(t_exp[-1]) - st.t_s))
+        # the largest propagation time of the frame is at one of its ends (t_exp increases); the instants as Python
+        # floats (the same values, exactly)
+        tl = t_exp.tolist()
+        horizon = max(abs(tl[0] - st.t_s), abs(tl[-1] - st.t_s))
         sig_pred = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, cov_w, cov_a, horizon,
                                                      self._f_px, self._rho_max_px)
         if sig_pred < math.inf:  # prediction_radius_px's rule, without its checks of the tracker's own numbers
@@ -716,12 +718,12 @@ class StarTracker:
         else:  # its clear error for a diverged state
             r = prediction_radius_px(self.centroid_sigma_px, sig_pred, self.radius_k_sigma, self.radius_min_px,
                                      self.radius_max_px)
-        if len(t_exp) > 1:
+        if len(tl) > 1:
             # Spots of one star one exposure apart must be well separated against the prediction error,
             # or the whole frame may match one exposure off (3/4 of the exposure plan's margin).
-            w_cam = np.dot(self._r_body_to_cam, omega)  # BLAS gemv like @, without the matmul ufunc machinery
-            tl = t_exp.tolist()  # the smallest exposure spacing on Python floats (the same differences, exactly)
-            spacing_px = math.hypot(w_cam[0], w_cam[1]) * min([b - a for a, b in zip(tl, tl[1:])]) * self._f_px
+            wx, wy, _ = np.dot(self._r_body_to_cam, omega).tolist()  # BLAS gemv like @, without the matmul ufunc
+            # the smallest exposure spacing on Python floats (the same differences, exactly)
+            spacing_px = math.hypot(wx, wy) * min([b - a for a, b in zip(tl, tl[1:])]) * self._f_px
             if spacing_px < 1.5 * self.shift_k_sigma * sig_pred:
                 latency = (time.perf_counter() - t0) * 1e3
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "

@@ -81,6 +81,10 @@ _NO_FLUX = np.zeros(0)
 _NO_FLUX.setflags(write=False)
 
 
+_new = object.__new__  # build_checked's two steps, for the per-sample loop of StarTracker._track
+_set = object.__setattr__
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     """``a`` made read-only (a constant shared by motion states)."""
     a.setflags(write=False)
@@ -482,8 +486,8 @@ class StarTracker:
         # the motion state holds (3, 3) float64 covariances: the kernel of prediction_sigma_px directly
         sigma = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, st.cov_omega,
                                                   self._cov_alpha_total(st), float(horizon), self._f_px, self._rho_max_px)
-        w_cam = np.dot(self._r_body_to_cam, w)  # BLAS gemv like @, without the matmul ufunc machinery
-        travel_px = math.hypot(w_cam[0], w_cam[1]) * period * self._f_px
+        wx, wy, _ = np.dot(self._r_body_to_cam, w).tolist()  # BLAS gemv like @, without the matmul ufunc machinery
+        travel_px = math.hypot(wx, wy) * period * self._f_px
         value = (n_rate, sigma, travel_px)
         self._motion_cache = (st, period, self._last_exp_centre, value)
         return value
@@ -676,16 +680,16 @@ class StarTracker:
         # Gyro readings at this and the previous frame: the rate in between is their interpolation (the
         # slope is the acceleration), with the gyro's error; the unmodelled acceleration change only
         # enters the propagation.
+        lever = st.t_s - t_frame
+        # (kernels.sensor: gyro + alpha lever and var_g + cov lever², rate differences, in one call each)
+        alpha = self._frame_alpha
+        if alpha is not None:
+            # the gyro's own acceleration over this frame: a torque change at the frame's start is in it
+            w, cov_w = sensor_kernels.rate_at(gyro, self._var_gyro, alpha, self._cov_alpha_gyro, lever, lever**2)
+            return w, alpha, cov_w, self._cov_alpha_gyro_total
         var_g = self._var_gyro
         var_proc = self._var_proc
-        lever = st.t_s - t_frame
         prev = st.rate_meas
-        # (kernels.sensor: gyro + alpha lever and var_g + cov lever², rate differences, in one call each)
-        if self._frame_alpha is not None:
-            # the gyro's own acceleration over this frame: a torque change at the frame's start is in it
-            alpha = self._frame_alpha
-            w, cov_w = sensor_kernels.rate_at(gyro, var_g, alpha, self._cov_alpha_gyro, lever, lever**2)
-            return w, alpha, cov_w, self._cov_alpha_gyro_total
         if prev is not None and 0 < t_frame - prev[0] <= self.coast_max_s:
             dt = t_frame - prev[0]
             alpha, cov_a = sensor_kernels.rate_difference(gyro, var_g, prev[1], prev[2], dt, dt**2)
@@ -702,8 +706,10 @@ class StarTracker:
         omega, alpha, cov_w, cov_a = self._propagation(st, gyro, t_frame)
         if extra_cov_alpha is not None:
             cov_a = cov_a + extra_cov_alpha
-        # the largest propagation time of the frame is at one of its ends (t_exp increases)
-        horizon = max(abs(float(t_exp[0]) - st.t_s), abs(float(t_exp[-1]) - st.t_s))
+        # the largest propagation time of the frame is at one of its ends (t_exp increases); the instants as Python
+        # floats (the same values, exactly)
+        tl = t_exp.tolist()
+        horizon = max(abs(tl[0] - st.t_s), abs(tl[-1] - st.t_s))
         sig_pred = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, cov_w, cov_a, horizon,
                                                      self._f_px, self._rho_max_px)
         if sig_pred < math.inf:  # prediction_radius_px's rule, without its checks of the tracker's own numbers
@@ -712,12 +718,12 @@ class StarTracker:
         else:  # its clear error for a diverged state
             r = prediction_radius_px(self.centroid_sigma_px, sig_pred, self.radius_k_sigma, self.radius_min_px,
                                      self.radius_max_px)
-        if len(t_exp) > 1:
+        if len(tl) > 1:
             # Spots of one star one exposure apart must be well separated against the prediction error,
             # or the whole frame may match one exposure off (3/4 of the exposure plan's margin).
-            w_cam = np.dot(self._r_body_to_cam, omega)  # BLAS gemv like @, without the matmul ufunc machinery
-            tl = t_exp.tolist()  # the smallest exposure spacing on Python floats (the same differences, exactly)
-            spacing_px = math.hypot(w_cam[0], w_cam[1]) * min([b - a for a, b in zip(tl, tl[1:])]) * self._f_px
+            wx, wy, _ = np.dot(self._r_body_to_cam, omega).tolist()  # BLAS gemv like @, without the matmul ufunc
+            # the smallest exposure spacing on Python floats (the same differences, exactly)
+            spacing_px = math.hypot(wx, wy) * min([b - a for a, b in zip(tl, tl[1:])]) * self._f_px
             if spacing_px < 1.5 * self.shift_k_sigma * sig_pred:
                 latency = (time.perf_counter() - t0) * 1e3
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
@@ -740,35 +746,44 @@ class StarTracker:
         if n_pred == 0:
             return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
         frac = n_matched / n_pred
-        sel = ok.nonzero()[0]
-        n_ok = len(sel)
-        if n_ok:
-            res_ok = rms_all if n_ok == len(rms_all) else rms_all[sel]  # all solved: no gather
-            rms = math.sqrt(float(np.dot(res_ok, res_ok)) / n_ok)
+        n_t = len(t_exp)
+        n_ok = n_off + len(kept)  # the solved instants: accept_instants' off ones and kept ones
+        if n_ok == n_t:  # all solved: no gather
+            skipped = ()
+            if n_ok == 1:  # np.dot of one element is its one rounded square
+                x = float(rms_all[0])
+                rms = math.sqrt(x * x)
+            else:
+                rms = math.sqrt(float(np.dot(rms_all, rms_all)) / n_ok)
         else:
-            rms = float("inf")
-        skipped = () if n_ok == len(ok) else tuple((~ok).nonzero()[0].tolist())
-        base = dict(n_matched=n_matched, n_predicted=n_pred, radius_px=r, latency_ms=latency, residual_arcsec=rms, skipped=skipped)
+            skipped = tuple((~ok).nonzero()[0].tolist())
+            if n_ok:
+                res_ok = rms_all[ok.nonzero()[0]]
+                rms = math.sqrt(float(np.dot(res_ok, res_ok)) / n_ok)
+            else:
+                rms = float("inf")
+        # a refusal's fields after its status and (no) samples
+        base = (n_matched, n_pred, r, latency, rms, skipped)
         if not n_ok:
-            return _Attempt(False, f"no exposure instant with {self.min_stars_per_instant} matched stars ({n_matched}/{n_pred} matched)", [], **base)
+            return _Attempt(False, f"no exposure instant with {self.min_stars_per_instant} matched stars ({n_matched}/{n_pred} matched)", [], *base)
         if frac < self.min_matched_fraction:
-            return _Attempt(False, f"matched {n_matched}/{n_pred} predicted spots ({100 * frac:.0f} % < {100 * self.min_matched_fraction:.0f} %)", [], **base)
+            return _Attempt(False, f"matched {n_matched}/{n_pred} predicted spots ({100 * frac:.0f} % < {100 * self.min_matched_fraction:.0f} %)", [], *base)
         if rms > self.max_residual_arcsec:
-            return _Attempt(False, f"residual {rms:.1f}\" > {self.max_residual_arcsec:.1f}\"", [], **base)
+            return _Attempt(False, f"residual {rms:.1f}\" > {self.max_residual_arcsec:.1f}\"", [], *base)
         # A frame matched one exposure off leaves the first (prediction lagging) or last (leading) instant
         # without stars while the others are full; a state already off by one exposure agrees with its own
         # prediction, so only this test sees it.
-        n_st = n_stars.tolist()
-        if len(n_st) >= 2:
+        if n_t >= 2:
+            n_st = n_stars.tolist()
             ordered = sorted(n_st)
             half = len(ordered) // 2
             median = ordered[half] if len(ordered) % 2 else 0.5 * (ordered[half - 1] + ordered[half])
             if min(n_st[0], n_st[-1]) < 0.5 * median:
                 return _Attempt(False, f"first/last instant nearly empty ({n_st[0]}, {n_st[-1]} stars, median "
-                                       f"{median:.0f}): matched one exposure off", [], **base)
+                                       f"{median:.0f}): matched one exposure off", [], *base)
         # Innovation: solved vs predicted attitude at each solved instant.
         if nis > self.innovation_gate:
-            return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", [], **base)
+            return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", [], *base)
         # Smoothness: an instant matched one exposure off (its spots taken for the neighbour's) sits on the trajectory
         # at the wrong time. Neither the residual nor the mean innovation over many instants sees one such instant;
         # its attitude against a polynomial through the other instants does (kernels.sensor.smooth_instants). Then
@@ -779,14 +794,17 @@ class StarTracker:
         if n_off:
             if 3 * n_off > n_ok:
                 return _Attempt(False, f"{n_off}/{n_ok} instants off a smooth motion (matched an exposure off)", [],
-                                **base)
+                                *base)
             n_ok = len(kept)
-            skipped = tuple(sorted(set(range(len(t_exp))) - set(kept.tolist())))
-            base["skipped"] = skipped
-        samples = [build_checked(AttitudeSample, {"t_s": t, "q_body_to_icrs": q, "covariance_rad2": c, "n_stars": n})
-                   for t, q, c, n in zip(t_s.tolist(), q_sol, cov_sol, n_sol.tolist())]
+            skipped = tuple(sorted(set(range(n_t)) - set(kept.tolist())))
+        # build_checked's construction inlined (one Python call less per sample): every field set at once
+        samples = []
+        for t, q, c, n in zip(t_s.tolist(), q_sol, cov_sol, n_sol.tolist()):
+            smp = _new(AttitudeSample)
+            _set(smp, "__dict__", {"t_s": t, "q_body_to_icrs": q, "covariance_rad2": c, "n_stars": n})
+            samples.append(smp)
         new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)
-        status = f"tracking {n_ok}/{len(t_exp)} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
+        status = f"tracking {n_ok}/{n_t} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
         if skipped:
             status += f", skipped instants {list(skipped)}"
         return _Attempt(True, status, samples, n_matched, n_pred, r, latency, rms, skipped, new_state)
@@ -840,17 +858,20 @@ class StarTracker:
         t_m, w_m, cov_m = meas
         prev = st.rate_meas
         alpha_known = False
+        lever = t_ref - t_m
         if prev is not None and 0.5 * self._frame_interval_s <= t_m - prev[0] <= self.coast_max_s:
             dtm = t_m - prev[0]
-            alpha, cov_alpha = sensor_kernels.rate_difference(w_m, cov_m, prev[1], prev[2], dtm, dtm**2)
+            # the acceleration from the two rates, then the rate carried to t_ref: one compiled call
+            alpha, cov_alpha, omega, cov_w = sensor_kernels.rate_difference_at(
+                w_m, cov_m, prev[1], prev[2], dtm, dtm**2, self._var_proc, lever, lever**2)
             alpha_known = True
-        elif prev is not None and 0 <= t_m - prev[0] < 0.5 * self._frame_interval_s:
-            # Too close to the previous measurement to difference: keep the earlier one and its estimate.
-            alpha, cov_alpha, alpha_known, meas = st.alpha_body, st.cov_alpha, st.alpha_known, prev
         else:
-            alpha, cov_alpha = np.zeros(3), np.zeros((3, 3))
-        lever = t_ref - t_m
-        omega, cov_w = sensor_kernels.rate_at(w_m, cov_m, alpha, cov_alpha + self._var_proc, lever, lever**2)
+            if prev is not None and 0 <= t_m - prev[0] < 0.5 * self._frame_interval_s:
+                # Too close to the previous measurement to difference: keep the earlier one and its estimate.
+                alpha, cov_alpha, alpha_known, meas = st.alpha_body, st.cov_alpha, st.alpha_known, prev
+            else:
+                alpha, cov_alpha = np.zeros(3), np.zeros((3, 3))
+            omega, cov_w = sensor_kernels.rate_at(w_m, cov_m, alpha, cov_alpha + self._var_proc, lever, lever**2)
         return build_checked(MotionState, {"t_s": t_ref, "q_body_to_icrs": q_ref, "cov_theta_rad2": cov_ref,
                                     "omega_body": omega, "cov_omega": cov_w, "alpha_body": alpha,
                                     "cov_alpha": cov_alpha, "rate_meas": meas, "alpha_known": alpha_known})

@@ -527,6 +527,25 @@ def test_rate_kernels_are_the_numpy_expressions_bit_for_bit():
         np.testing.assert_array_equal(cov, c1 + ca * lever**2)
 
 
+def test_rate_difference_at_is_the_motion_states_numpy_update_bit_for_bit():
+    """kernels.sensor.rate_difference_at gives exactly the floats of the motion state's numpy update it replaces:
+    α = (ω₁ − ω₀)/dt, C_α = (C₁ + C₀)/dt², then ω₁ + α lever and C₁ + (C_α + C_extra) lever²."""
+    from startracker.kernels.sensor import rate_difference_at
+
+    rng = np.random.default_rng(15)
+    for _ in range(200):
+        w1, w0 = rng.normal(0, 0.3, (2, 3))
+        c1, c0, cx = (m @ m.T * 10.0 ** rng.uniform(-12, -4) for m in rng.normal(size=(3, 3, 3)))
+        dt, lever = rng.uniform(1e-3, 1.0), rng.uniform(-0.2, 0.2)
+        alpha, cov_alpha, w, cov = rate_difference_at(w1, c1, w0, c0, dt, dt**2, cx, lever, lever**2)
+        a_ref = (w1 - w0) / dt
+        ca_ref = (c1 + c0) / dt**2
+        np.testing.assert_array_equal(alpha, a_ref)
+        np.testing.assert_array_equal(cov_alpha, ca_ref)
+        np.testing.assert_array_equal(w, w1 + a_ref * lever)
+        np.testing.assert_array_equal(cov, c1 + (ca_ref + cx) * lever**2)
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_delivery_kernels_equal_their_numpy_formulas(seed):
     """A delivery's rows made unit bit for bit as ``q / np.linalg.norm(q, axis=1)[:, None]`` with the order test of

@@ -15,7 +15,8 @@ from startracker.kernels.algebra import mahalanobis3
 from startracker.kernels.rotations import interpolate_rows, normalize_rows, relative_rotvec_rows
 
 __all__ = ["innovation_chi2_mean", "consistency_nis", "instant_deleted_chi2", "smooth_instants", "accept_instants",
-           "wrong_sample_flags", "rate_difference", "rate_at", "any_nonpositive", "true_indices", "gather_instants"]
+           "wrong_sample_flags", "rate_difference", "rate_at", "rate_difference_at", "any_nonpositive", "true_indices",
+           "gather_instants"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -87,6 +88,49 @@ def rate_at(omega, cov_omega, alpha, cov_alpha, lever_s, lever2_s2):
         for j in range(3):
             cov[i, j] = cov_omega[i, j] + cov_alpha[i, j] * lever2_s2
     return w, cov
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def rate_difference_at(omega1, cov1, omega0, cov0, dt_s, dt2_s2, cov_extra, lever_s, lever2_s2):
+    """:func:`rate_difference` of two rate measurements, then :func:`rate_at` carrying the later one ``lever_s`` along
+    by that acceleration, whose covariance grows by ``cov_extra`` there: the motion state's rate update in one call,
+    the same floats as the two kernels and the numpy sum ``cov_alpha + cov_extra`` in between.
+
+    Parameters
+    ----------
+    omega1, omega0 : ndarray, shape (3,)
+        The later and the earlier rate, rad/s.
+    cov1, cov0 : ndarray, shape (3, 3)
+        Their covariances, (rad/s)².
+    dt_s : float
+        Time from the earlier to the later, s (> 0).
+    dt2_s2 : float
+        ``dt_s ** 2`` as the caller computes it, s².
+    cov_extra : ndarray, shape (3, 3)
+        Added to the acceleration's covariance for the carry (the unmodelled change), (rad/s²)².
+    lever_s : float
+        Time the later rate is carried over, s.
+    lever2_s2 : float
+        ``lever_s ** 2`` as the caller computes it, s².
+
+    Returns
+    -------
+    alpha : ndarray, shape (3,)
+        ``(ω₁ − ω₀) / dt``, rad/s².
+    cov_alpha : ndarray, shape (3, 3)
+        ``(C₁ + C₀) / dt²``, (rad/s²)².
+    omega_at : ndarray, shape (3,)
+        ``ω₁ + α lever``, rad/s.
+    cov_at : ndarray, shape (3, 3)
+        ``C₁ + (C_α + C_extra) lever²``, (rad/s)².
+    """
+    alpha, cov_alpha = rate_difference(omega1, cov1, omega0, cov0, dt_s, dt2_s2)
+    cov_total = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            cov_total[i, j] = cov_alpha[i, j] + cov_extra[i, j]
+    w, cov = rate_at(omega1, cov1, alpha, cov_total, lever_s, lever2_s2)
+    return alpha, cov_alpha, w, cov
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

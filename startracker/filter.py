@@ -523,10 +523,6 @@ class DelayedFusion:
         self._wg = np.zeros((0, 3))
         self._rn = np.zeros((0, 3))
         self._now = None
-        # the propagation-only kernel call's fixed arguments, built once
-        self._no_samples = (np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3)))
-        self._scratch = (np.zeros(0, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3))
-        self._no_outputs = (np.empty(0), np.empty((0, 3)), np.empty((0, 3, 3)))
 
     def start(self, ekf: AttitudeEKF) -> None:
         """Use ``ekf`` (a new filter at its own time) from now on; the buffered intervals after its time are kept."""
@@ -761,18 +757,13 @@ class DelayedFusion:
             raise RuntimeError("start(ekf) before current()")
         if self._now is None:
             ekf = self.ekf
-            q = np.array(ekf.q_body_to_icrs, dtype=np.float64)
-            b = np.array(ekf.bias_rad_s, dtype=np.float64)
-            P = np.array(ekf.P, dtype=np.float64)
-            if len(self._tg):
-                kf.fuse_frame(q, b, P, float(ekf.t_s), self._wg, self._tg, *self._no_samples, ekf.sigma_v,
-                              ekf.sigma_u, math.inf, *self._scratch, self._rn, *self._no_outputs)
-                omega = self._wg[-1] - b
-                t = float(self._tg[-1])
+            if len(self._tg):  # one compiled call: the copies, the propagation and the rate
+                self._now = kf.propagate_buffer(ekf.q_body_to_icrs, ekf.bias_rad_s, ekf.P, float(ekf.t_s), self._wg,
+                                                self._tg, self._rn, ekf.sigma_v, ekf.sigma_u)
             else:
-                omega = np.asarray(ekf.omega_body, dtype=np.float64).copy()
-                t = float(ekf.t_s)
-            self._now = (q, b, P, omega, t)
+                self._now = (np.array(ekf.q_body_to_icrs, dtype=np.float64), np.array(ekf.bias_rad_s, dtype=np.float64),
+                             np.array(ekf.P, dtype=np.float64), np.asarray(ekf.omega_body, dtype=np.float64).copy(),
+                             float(ekf.t_s))
         return self._now
 
     def _keep_from(self, k: int) -> None:

@@ -19,7 +19,10 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
   :func:`fuse_frame_timed`: the test against the prediction, then the fusion when it passes, in one call;
 - :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped), and
   :func:`gyro_jump_looks`: its two looks of a span (its own window, then the previous span's again) in one call;
-- :func:`append_intervals`: the delayed fusion's gyro buffer with a span's intervals appended;
+- :func:`append_intervals`: the delayed fusion's gyro buffer with a span's intervals appended, and
+  :func:`propagate_buffer`: the estimate at the buffer's end (the estimate *now*);
+- :func:`reported_attitude`: the estimate's reported covariance, its verdict's NIS against the truth and its largest
+  variance, in one call;
 - :func:`delivery_rows` / :func:`delivery_counts`: a delivery's samples made unit (and whether they are in time
   order), and its tallies after fusion (the last accepted sample, wrong and confidently wrong samples).
 
@@ -35,9 +38,12 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.sensor import consistency_nis
+
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
            "innovation_window", "timing_statistic", "fuse_frame_timed", "saturated_rate_noise", "gyro_jump_statistic",
-           "gyro_jump_looks", "delivery_rows", "delivery_counts", "append_intervals"]
+           "gyro_jump_looks", "delivery_rows", "delivery_counts", "append_intervals", "propagate_buffer",
+           "reported_attitude"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -988,3 +994,114 @@ def append_intervals(tg, wg, rn, t_new, w_new, rn_new):
             wg2[n + i, a] = w_new[i, a]
             rn2[n + i, a] = 0.0 if zero_noise else rn_new[i, a]
     return tg2, wg2, rn2
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def propagate_buffer(q, b, P, t_s, wg, tg, rate_noise, sigma_v, sigma_u):
+    """The estimate at the end of a gyro buffer: :func:`fuse_frame` without samples on copies of ``q``, ``b``, ``P``.
+
+    Parameters
+    ----------
+    q : ndarray, shape (4,)
+        Attitude estimate (w, x, y, z), unit, at ``t_s`` (not changed).
+    b : ndarray, shape (3,)
+        Gyro bias estimate, rad/s (not changed).
+    P : ndarray, shape (6, 6)
+        Error covariance, rad² and (rad/s)² (not changed).
+    t_s : float
+        Time of the estimate, s.
+    wg : ndarray, shape (G, 3)
+        Measured gyro rates of the buffered intervals, rad/s (G >= 1).
+    tg : ndarray, shape (G,)
+        End of each interval, s, strictly increasing.
+    rate_noise : ndarray, shape (G, 3)
+        Extra angle-random-walk variance density of each interval, rad²/s (see :func:`fuse_frame`).
+    sigma_v, sigma_u : float
+        Angle random walk (rad/√s) and bias random walk (rad/s/√s).
+
+    Returns
+    -------
+    q_now : ndarray, shape (4,)
+        Attitude at ``tg[-1]``.
+    b_now : ndarray, shape (3,)
+        Bias, rad/s.
+    P_now : ndarray, shape (6, 6)
+        Error covariance.
+    omega : ndarray, shape (3,)
+        Bias-corrected rate of the last interval ``wg[-1] - b_now``, rad/s.
+    t_now : float
+        ``tg[-1]``, s.
+    """
+    q2 = np.empty(4)
+    b2 = np.empty(3)
+    P2 = np.empty((6, 6))
+    for i in range(4):
+        q2[i] = q[i]
+    for i in range(3):
+        b2[i] = b[i]
+    for i in range(6):
+        for j in range(6):
+            P2[i, j] = P[i, j]
+    fuse_frame(q2, b2, P2, t_s, wg, tg, np.empty((0, 4)), np.empty(0), np.empty((0, 3, 3)), sigma_v, sigma_u, math.inf,
+               np.empty(0, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3), rate_noise, np.empty(0),
+               np.empty((0, 3)), np.empty((0, 3, 3)))
+    n = tg.shape[0]
+    omega = np.empty(3)
+    for a in range(3):
+        omega[a] = wg[n - 1, a] - b2[a]
+    return q2, b2, P2, omega, tg[n - 1]
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def reported_attitude(q_true, q, P, widen, extra_rad2):
+    """The reported attitude covariance of an estimate, its verdict's NIS against the truth and its largest variance.
+
+    The covariance is the attitude block of ``P``, its diagonal widened by ``extra_rad2`` when ``widen`` (a drift the
+    monitors may have missed); the NIS is :func:`startracker.kernels.sensor.consistency_nis` of ``q`` on it.
+
+    Parameters
+    ----------
+    q_true : ndarray, shape (4,)
+        True attitude (w, x, y, z), unit.
+    q : ndarray, shape (4,)
+        Estimated attitude, unit.
+    P : ndarray, shape (6, 6) (or at least (3, 3))
+        Error covariance; its upper-left (3, 3) block, rad², is the attitude's.
+    widen : bool
+        Whether ``extra_rad2`` is added to the diagonal.
+    extra_rad2 : float
+        Variance added to each axis, rad².
+
+    Returns
+    -------
+    cov : ndarray, shape (3, 3)
+        Reported attitude covariance, rad² (a new array).
+    nis : float
+        ``δθᵀ cov⁻¹ δθ`` with ``δθ = log(q* ⊗ q_true)`` (χ²(3) when the covariance tells the truth).
+    max_var : float
+        The largest diagonal element of ``cov`` (the first of equals; Python's ``max`` of the three), rad².
+    """
+    cov = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            cov[i, j] = P[i, j]
+    if widen:
+        cov[0, 0] += extra_rad2
+        cov[1, 1] += extra_rad2
+        cov[2, 2] += extra_rad2
+    qt = np.empty((1, 4))
+    qe = np.empty((1, 4))
+    for i in range(4):
+        qt[0, i] = q_true[i]
+        qe[0, i] = q[i]
+    c3 = np.empty((1, 3, 3))
+    for i in range(3):
+        for j in range(3):
+            c3[0, i, j] = cov[i, j]
+    nis = consistency_nis(qt, qe, c3)[0]
+    max_var = cov[0, 0]
+    if cov[1, 1] > max_var:
+        max_var = cov[1, 1]
+    if cov[2, 2] > max_var:
+        max_var = cov[2, 2]
+    return cov, nis, max_var

@@ -1136,7 +1136,14 @@ class StarTrackerUnit:
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
         n_timing = sum(self._timing_n)  # of 0.0 and 1.0: exact in any order
-        timing_alarm = n_timing > 0 and float(self._timing.sum()) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
+        timing_sum = None
+        if n_timing > 0:
+            tv = self._timing.tolist()
+            if len(tv) == 10:  # numpy's pairwise sum of 10 values (eight lanes, then the rest in order), on floats
+                timing_sum = (((tv[0] + tv[1]) + (tv[2] + tv[3])) + ((tv[4] + tv[5]) + (tv[6] + tv[7])) + tv[8]) + tv[9]
+            else:
+                timing_sum = float(self._timing.sum())
+        timing_alarm = n_timing > 0 and timing_sum > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
         # its samples' own NIS
         sample_alarm = MONITOR_SAMPLE_NIS and n_nis > 0 and max_nis > sample_nis_threshold(int(n_nis))
@@ -1162,8 +1169,7 @@ class StarTrackerUnit:
         # A timestamp fault lasts: after a timing alarm the estimate stays invalid until the window shows no sign of
         # one (its timing sum below χ²(n)'s median), not merely none strong enough to alarm again.
         if self._timing_suspect and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES and (
-                n_timing == 0
-                or float(self._timing.sum()) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
+                n_timing == 0 or timing_sum <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
             self._timing_suspect = False
 
     def _rate_matters(self) -> bool:

@@ -16,7 +16,8 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
 - :func:`innovation_window`: the innovation monitor's statistics (spread and mean of the innovations over the
   window, the newest delivery's mean and its largest NIS);
 - :func:`timing_statistic`: the timing test of a delivery along the body rate, before it is fused, and
-  :func:`fuse_frame_timed`: the test against the prediction, then the fusion when it passes, in one call;
+  :func:`fuse_frame_timed`: the test against the prediction, then the fusion when it passes, in one call
+  (:func:`fuse_buffer_timed`: the same on the delayed fusion's buffer, with its copies and outputs);
 - :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped), and
   :func:`gyro_jump_looks`: its two looks of a span (its own window, then the previous span's again) in one call;
 - :func:`append_intervals`: the delayed fusion's gyro buffer with a span's intervals appended, and
@@ -43,7 +44,7 @@ from startracker.kernels.sensor import consistency_nis
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
            "innovation_window", "timing_statistic", "fuse_frame_timed", "saturated_rate_noise", "gyro_jump_statistic",
            "gyro_jump_looks", "delivery_rows", "delivery_counts", "append_intervals", "propagate_buffer",
-           "reported_attitude"]
+           "reported_attitude", "fuse_buffer_timed"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -1105,3 +1106,84 @@ def reported_attitude(q_true, q, P, widen, extra_rad2):
     if cov[2, 2] > max_var:
         max_var = cov[2, 2]
     return cov, nis, max_var
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def fuse_buffer_timed(q, b, P, t_s, wg_buf, tg_buf, rn_buf, qm, tm, rs, sigma_v, sigma_u, gate_chi2, u, timing_chi2_max,
+                      loose_ratio):
+    """:func:`fuse_frame_timed` of a delivery on the delayed fusion's gyro buffer, on fresh copies of the filter.
+
+    The buffered intervals up to the last sample's instant ``tm[-1]`` are taken, the one covering it (the first that
+    ends at or after it) cut there, and :func:`fuse_frame_timed` runs on copies of ``q``, ``b``, ``P`` with fresh
+    output arrays: the arithmetic of :meth:`startracker.filter.DelayedFusion.fuse_timed`'s usual case in one call.
+
+    Parameters
+    ----------
+    q, b, P, t_s :
+        The filter (as :func:`fuse_frame`; not changed).
+    wg_buf, tg_buf, rn_buf : ndarray, shape (n, 3), (n,), (n, 3)
+        The buffer's rates (rad/s), interval ends (s, strictly increasing) and extra rate noise (rad²/s).
+    qm, tm, rs :
+        The samples (M >= 1, time order, ``tm[0] >= t_s``), as :func:`fuse_frame`.
+    sigma_v, sigma_u, gate_chi2 :
+        As :func:`fuse_frame`.
+    u, timing_chi2_max, loose_ratio :
+        As :func:`fuse_frame_timed`.
+
+    Returns
+    -------
+    reached : bool
+        Whether a buffered interval reaches ``tm[-1]``; when not, nothing else is computed (the arrays are empty and
+        the scalars zero).
+    j : int
+        The buffered interval covering ``tm[-1]`` (``np.searchsorted(tg_buf, tm[-1])``; ``n`` when none reaches it).
+    keep_from : int
+        The first buffered interval that ends after ``tm[-1]`` (the buffer to keep after a fusion).
+    statistic, loose, fused, t_end, n_accepted, n_propagations :
+        As :func:`fuse_frame_timed`.
+    q_new, b_new, P_new : ndarray, shape (4,), (3,), (6, 6)
+        The filter after the fusion (the copies, unchanged when not fused).
+    accepted, phi, qd, z_last, nis, z, s : ndarray, shape (M,), (6, 6), (6, 6), (3,), (M,), (M, 3), (M, 3, 3)
+        The outputs of :func:`fuse_frame` (``phi``, ``qd`` and ``z_last`` as allocated, uninitialised, when there was
+        no propagation or sample).
+    """
+    m = qm.shape[0]
+    n = tg_buf.shape[0]
+    t_last = tm[m - 1]
+    j = 0  # np.searchsorted(tg_buf, t_last, side="left")
+    while j < n and tg_buf[j] < t_last:
+        j += 1
+    q2 = np.empty(4)
+    b2 = np.empty(3)
+    P2 = np.empty((6, 6))
+    accepted = np.empty(m, dtype=np.bool_)
+    phi = np.empty((6, 6))
+    qd = np.empty((6, 6))
+    z_last = np.empty(3)
+    nis = np.empty(m)
+    zs = np.empty((m, 3))
+    ss = np.empty((m, 3, 3))
+    if j == n:
+        return (False, j, j, 0.0, False, False, 0.0, 0, 0, q2, b2, P2, accepted, phi, qd, z_last, nis, zs, ss)
+    for i in range(4):
+        q2[i] = q[i]
+    for i in range(3):
+        b2[i] = b[i]
+    for i in range(6):
+        for k in range(6):
+            P2[i, k] = P[i, k]
+    tg = np.empty(j + 1)
+    wg = np.empty((j + 1, 3))
+    rn = np.empty((j + 1, 3))
+    for i in range(j + 1):
+        tg[i] = tg_buf[i]
+        for a in range(3):
+            wg[i, a] = wg_buf[i, a]
+            rn[i, a] = rn_buf[i, a]
+    tg[j] = t_last
+    stat, loose, fused, t, n_acc, n_prop = fuse_frame_timed(q2, b2, P2, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u,
+                                                            gate_chi2, accepted, phi, qd, z_last, rn, nis, zs, ss, u,
+                                                            timing_chi2_max, loose_ratio)
+    keep_from = j if tg_buf[j] > t_last else j + 1
+    return (True, j, keep_from, stat, loose, fused, t, n_acc, n_prop, q2, b2, P2, accepted, phi, qd, z_last, nis, zs,
+            ss)

@@ -450,21 +450,28 @@ class AttitudeEKF:
             )
             if not fused:
                 return stat, loose, None
+        self._take(q, b, P, t, n_acc, n_prop, wg[-1], rs[-1] if m else None, phi, qd, z, nis, zs, ss)
+        return accepted if timing is None else (stat, loose, accepted)
+
+    def _take(self, q, b, P, t, n_acc, n_prop, w_last, rs_last, phi, qd, z, nis, zs, ss):
+        """The filter after a :func:`~startracker.kernels.filter.fuse_frame` call on its copies: its new state
+        (``w_last`` (3,): the last interval's gyro rate; ``rs_last``: the last sample's covariance, None without
+        samples) and the call's outputs."""
+        m = len(nis)
         self.last_nis, self.last_innovation_rad, self.last_innovation_cov_rad2 = nis, zs, ss
         self.n_updates += n_acc
         self.n_rejected += m - n_acc
         self.q_body_to_icrs = q
         self.bias_rad_s = b
         self.t_s = t
-        self._omega_gyro_last = wg[-1].copy()
+        self._omega_gyro_last = w_last.copy()
         self.omega_body = self._omega_gyro_last - b
         self.ekf.P = P
         self.ekf.x = np.zeros((6, 1))
         if n_prop:
             self.ekf.F, self.ekf.Q = phi, qd
         if m:
-            self.ekf.y, self.ekf.R = z.reshape(-1, 1), rs[-1]
-        return accepted if timing is None else (stat, loose, accepted)
+            self.ekf.y, self.ekf.R = z.reshape(-1, 1), rs_last
 
     def __repr__(self) -> str:
         sig = np.degrees(self.attitude_sigma_rad) * 3600.0
@@ -523,10 +530,6 @@ class DelayedFusion:
         self._wg = np.zeros((0, 3))
         self._rn = np.zeros((0, 3))
         self._now = None
-        # the propagation-only kernel call's fixed arguments, built once
-        self._no_samples = (np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3)))
-        self._scratch = (np.zeros(0, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3))
-        self._no_outputs = (np.empty(0), np.empty((0, 3)), np.empty((0, 3, 3)))
 
     def start(self, ekf: AttitudeEKF) -> None:
         """Use ``ekf`` (a new filter at its own time) from now on; the buffered intervals after its time are kept."""
@@ -675,19 +678,23 @@ class DelayedFusion:
         """
         ekf = self.ekf
         if ekf is not None and len(t_meas_s) and t_meas_s[0] >= ekf.t_s:
-            t_last = float(t_meas_s[-1])
-            wg, tg, rn, j = self._intervals_to(t_last)
-            if wg is not None:  # the usual case: one compiled call, then fuse's bookkeeping
-                stat, loose, acc = ekf._fuse(wg, tg, q_meas_body_to_icrs, t_meas_s, covariance_rad2, rn,
-                                             timing=(rate_axis, timing_chi2_max, loose_ratio))
-                if acc is None:
-                    return stat, bool(loose), None
-                self.last_nis = ekf.last_nis
-                self.last_innovation_rad = ekf.last_innovation_rad
-                self.last_innovation_cov_rad2 = ekf.last_innovation_cov_rad2
-                self._keep_from(j if self._tg[j] > t_last else j + 1)
+            # the usual case: one compiled call (the buffer's cut, the copies, the test and the fusion), then fuse's
+            # bookkeeping
+            (reached, j, keep_from, stat, loose, fused, t, n_acc, n_prop, q, b, P, acc, phi, qd, z, nis, zs,
+             ss) = kf.fuse_buffer_timed(
+                ekf.q_body_to_icrs, ekf.bias_rad_s, ekf.P, float(ekf.t_s), self._wg, self._tg, self._rn,
+                q_meas_body_to_icrs, t_meas_s, covariance_rad2, ekf.sigma_v, ekf.sigma_u,
+                math.inf if ekf.gate_chi2 is None else ekf.gate_chi2, rate_axis, timing_chi2_max, loose_ratio)
+            if reached:
+                if not fused:
+                    return stat, loose, None
+                ekf._take(q, b, P, t, n_acc, n_prop, self._wg[j], covariance_rad2[-1], phi, qd, z, nis, zs, ss)
+                self.last_nis = nis
+                self.last_innovation_rad = zs
+                self.last_innovation_cov_rad2 = ss
+                self._keep_from(keep_from)
                 self._now = None
-                return stat, bool(loose), acc
+                return stat, loose, acc
         # the others: the test, then the fusion, apart
         z, s = self.prior_innovations(q_meas_body_to_icrs, t_meas_s, covariance_rad2)
         stat, loose = kf.timing_statistic(rate_axis, z, s, covariance_rad2, loose_ratio)
@@ -761,18 +768,13 @@ class DelayedFusion:
             raise RuntimeError("start(ekf) before current()")
         if self._now is None:
             ekf = self.ekf
-            q = np.array(ekf.q_body_to_icrs, dtype=np.float64)
-            b = np.array(ekf.bias_rad_s, dtype=np.float64)
-            P = np.array(ekf.P, dtype=np.float64)
-            if len(self._tg):
-                kf.fuse_frame(q, b, P, float(ekf.t_s), self._wg, self._tg, *self._no_samples, ekf.sigma_v,
-                              ekf.sigma_u, math.inf, *self._scratch, self._rn, *self._no_outputs)
-                omega = self._wg[-1] - b
-                t = float(self._tg[-1])
+            if len(self._tg):  # one compiled call: the copies, the propagation and the rate
+                self._now = kf.propagate_buffer(ekf.q_body_to_icrs, ekf.bias_rad_s, ekf.P, float(ekf.t_s), self._wg,
+                                                self._tg, self._rn, ekf.sigma_v, ekf.sigma_u)
             else:
-                omega = np.asarray(ekf.omega_body, dtype=np.float64).copy()
-                t = float(ekf.t_s)
-            self._now = (q, b, P, omega, t)
+                self._now = (np.array(ekf.q_body_to_icrs, dtype=np.float64), np.array(ekf.bias_rad_s, dtype=np.float64),
+                             np.array(ekf.P, dtype=np.float64), np.asarray(ekf.omega_body, dtype=np.float64).copy(),
+                             float(ekf.t_s))
         return self._now
 
     def _keep_from(self, k: int) -> None:

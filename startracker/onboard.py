@@ -991,28 +991,38 @@ class StarTrackerUnit:
         """:func:`judge_estimate` of :meth:`estimate`, on the filter's own arrays (no copies)."""
         if self.fusion.ekf is None:
             return False, False
-        q, _, P, _, t_s = self.fusion.current()
-        cov = self._protected_cov(P, t_s)
-        nis = sensor_kernels.consistency_nis(q_true.reshape(1, 4), q.reshape(1, 4), cov.reshape(1, 3, 3))
-        wrong = bool(nis[0] > VERDICT_CHI2_3)
-        return wrong, wrong and self._estimate_valid(cov)
+        now = self.fusion.current()
+        cov, nis, max_var = self._protected_cov(now, q_true)
+        wrong = bool(nis > VERDICT_CHI2_3)
+        return wrong, wrong and self._estimate_valid(max_var)
 
-    def _protected_cov(self, P, t_s: float) -> np.ndarray:
+    def _protected_cov(self, now, q_true=None):
         """The estimate's reported attitude covariance (3, 3), rad²: the filter's, plus the drift of a gyro bias change
-        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`)."""
-        cov = P[:3, :3].copy()
-        dt = t_s - self._t_accepted
-        if dt > 0.0:
-            extra = (self.bias_allowance_rad_s * dt) ** 2
-            cov[0, 0] += extra
-            cov[1, 1] += extra
-            cov[2, 2] += extra
-        return cov
+        the jump monitor could miss since the last accepted sample, ``(b Δt)² I`` (:meth:`_bias_allowance`); with its
+        largest variance and, given the true attitude ``q_true`` (4,), its verdict's NIS (one compiled call,
+        :func:`startracker.kernels.filter.reported_attitude`).
 
-    def _estimate_valid(self, P) -> bool:
-        """The estimate's validity flag (see :class:`Estimate`); ``P``: its reported covariance (the attitude block
-        first)."""
-        sig = math.sqrt(max(P[0, 0], P[1, 1], P[2, 2]))
+        ``now`` is :meth:`startracker.filter.DelayedFusion.current`'s tuple; returns ``(cov, nis, max_var)`` (``nis``
+        NaN without ``q_true``). The last result is kept for :meth:`estimate` while ``now``, the last accepted instant
+        and the allowance stay the same: the caller must not change ``cov`` (estimate copies it)."""
+        key = (now, self._t_accepted, self.bias_allowance_rad_s)
+        kept = getattr(self, "_reported", None)  # (set here: none before the first report)
+        if q_true is None and kept is not None and kept[0][0] is now and kept[0][1:] == key[1:]:
+            return kept[1]
+        q, P, t_s = now[0], now[2], now[4]
+        dt = t_s - self._t_accepted
+        widen = dt > 0.0
+        extra = (self.bias_allowance_rad_s * dt) ** 2 if widen else 0.0
+        out = filter_kernels.reported_attitude(q if q_true is None else q_true, q, P, widen, extra)
+        if q_true is None:  # the NIS of the estimate against itself is no verdict
+            out = (out[0], math.nan, out[2])
+        self._reported = (key, out)
+        return out
+
+    def _estimate_valid(self, max_var: float) -> bool:
+        """The estimate's validity flag (see :class:`Estimate`); ``max_var``: the largest variance of its reported
+        covariance, rad²."""
+        sig = math.sqrt(max_var)
         return (sig <= ESTIMATE_VALID_SIGMA_RAD and self._rejected_frames == 0 and not self._inconsistent
                 and not self._timing_suspect and self._unconfirmed == 0
                 and self._t_saturated < self._t_accepted
@@ -1126,7 +1136,14 @@ class StarTrackerUnit:
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
         n_timing = sum(self._timing_n)  # of 0.0 and 1.0: exact in any order
-        timing_alarm = n_timing > 0 and float(self._timing.sum()) > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
+        timing_sum = None
+        if n_timing > 0:
+            tv = self._timing.tolist()
+            if len(tv) == 10:  # numpy's pairwise sum of 10 values (eight lanes, then the rest in order), on floats
+                timing_sum = (((tv[0] + tv[1]) + (tv[2] + tv[3])) + ((tv[4] + tv[5]) + (tv[6] + tv[7])) + tv[8]) + tv[9]
+            else:
+                timing_sum = float(self._timing.sum())
+        timing_alarm = n_timing > 0 and timing_sum > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
         # its samples' own NIS
         sample_alarm = MONITOR_SAMPLE_NIS and n_nis > 0 and max_nis > sample_nis_threshold(int(n_nis))
@@ -1152,8 +1169,7 @@ class StarTrackerUnit:
         # A timestamp fault lasts: after a timing alarm the estimate stays invalid until the window shows no sign of
         # one (its timing sum below χ²(n)'s median), not merely none strong enough to alarm again.
         if self._timing_suspect and self._monitor_filled >= MONITOR_RECOVERY_DELIVERIES and (
-                n_timing == 0
-                or float(self._timing.sum()) <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
+                n_timing == 0 or timing_sum <= _chi2_quantile_wilson_hilferty(n_timing, TIMING_RECOVERY_Z)):
             self._timing_suspect = False
 
     def _rate_matters(self) -> bool:
@@ -1414,10 +1430,9 @@ class StarTrackerUnit:
         """The filter's estimate; before the first fix an invalid one (identity, raw gyro rate, σ = π)."""
         if self.fusion.ekf is None:
             return Estimate(np.array([1.0, 0.0, 0.0, 0.0]), self._omega_gyro.copy(), np.pi, False)
-        q, _, P, omega, t_s = self.fusion.current()
-        cov = self._protected_cov(P, t_s)
-        sig = math.sqrt(max(cov[0, 0], cov[1, 1], cov[2, 2]))
-        return Estimate(q.copy(), omega.copy(), sig, self._estimate_valid(cov), cov)
+        now = self.fusion.current()
+        cov, _, max_var = self._protected_cov(now)
+        return Estimate(now[0].copy(), now[3].copy(), math.sqrt(max_var), self._estimate_valid(max_var), cov.copy())
 
     def render_last_frame(self) -> np.ndarray | None:
         """RGB uint8 image (rows, cols, 3) of the last frame of the first head, detections boxed; None before a

@@ -238,3 +238,88 @@ def test_fuse_frame_timed_kernel_is_the_three_calls(case):
     assert out == (stat_ref, loose_ref, False, float(ekf.t_s), 0, 0)
     for x, y in zip(held, state()):
         assert np.array_equal(x, y)
+
+
+def test_propagate_buffer_kernel_is_the_filters_propagation():
+    """kernels.filter.propagate_buffer: the filter propagated through a buffer equals filterpy's predict interval by
+    interval (AttitudeEKF.propagate) to 1e-12, and fuse_frame without samples on copies bit for bit (the estimate now
+    of DelayedFusion.current before the kernel); its inputs are left unchanged."""
+    from startracker.kernels import filter as kf
+
+    ekf, wg, tg, _, _, _ = setup(2, g=12)
+    rn = np.zeros((len(tg), 3))
+    q0, b0, P0 = ekf.q_body_to_icrs.copy(), ekf.bias_rad_s.copy(), ekf.P.copy()
+    q, b, P, omega, t = kf.propagate_buffer(ekf.q_body_to_icrs, ekf.bias_rad_s, ekf.P, float(ekf.t_s), wg, tg, rn,
+                                            ekf.sigma_v, ekf.sigma_u)
+    assert np.array_equal(ekf.q_body_to_icrs, q0) and np.array_equal(ekf.bias_rad_s, b0) and np.array_equal(ekf.P, P0)
+    q_ref, b_ref, P_ref = q0.copy(), b0.copy(), P0.copy()
+    kf.fuse_frame(q_ref, b_ref, P_ref, float(ekf.t_s), wg, tg, np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3, 3)),
+                  ekf.sigma_v, ekf.sigma_u, np.inf, np.zeros(0, bool), np.empty((6, 6)), np.empty((6, 6)), np.empty(3),
+                  rn, np.empty(0), np.empty((0, 3)), np.empty((0, 3, 3)))
+    assert np.array_equal(q, q_ref) and np.array_equal(b, b_ref) and np.array_equal(P, P_ref)
+    assert np.array_equal(omega, wg[-1] - b_ref) and t == tg[-1]
+    slow = copy.deepcopy(ekf)
+    t_prev = slow.t_s
+    for w, t_end in zip(wg, tg):
+        slow.propagate(w, t_end - t_prev)
+        t_prev = t_end
+    np.testing.assert_allclose(q, slow.q_body_to_icrs, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(P, slow.P, rtol=1e-12, atol=1e-24)
+
+
+@pytest.mark.parametrize("t_last", [0.0534, 0.06, 0.2])
+def test_fuse_buffer_timed_kernel_is_the_cut_buffer_and_fuse_frame_timed(t_last):
+    """kernels.filter.fuse_buffer_timed equals, bit for bit, fuse_frame_timed on copies of the filter over the buffer
+    cut at the last sample (np.searchsorted's interval, its end moved to the sample), with the covering interval and
+    the first interval to keep; beyond the buffer it reports that none reaches the sample."""
+    from startracker.kernels import filter as kf
+
+    ekf, wg, tg, _, _, cov = setup(4, g=11)
+    rng = np.random.default_rng(5)
+    tm = np.array([0.0234, 0.0434, t_last])
+    qm = np.array([quat_multiply(quat_integrate(ekf.q_body_to_icrs, np.radians([0.0, 20.0, 3.0]), t),
+                                 quat_from_rotvec(rng.normal(size=3) * 5 * ARCSEC)) for t in tm])
+    rs = np.repeat(cov[None], len(tm), axis=0)
+    rn = np.zeros((len(tg), 3))
+    rn[2] = 1e-9
+    u = np.radians([0.0, 20.0, 3.0]) / np.linalg.norm(np.radians([0.0, 20.0, 3.0]))
+    args = (ekf.q_body_to_icrs, ekf.bias_rad_s, ekf.P, float(ekf.t_s), wg, tg, rn, qm, tm, rs, ekf.sigma_v,
+            ekf.sigma_u, 30.0, u, np.inf, 4.0)
+    out = kf.fuse_buffer_timed(*args)
+    j = int(np.searchsorted(tg, t_last))
+    if j == len(tg):
+        assert out[0] is False and out[1] == j
+        return
+    assert out[:3] == (True, j, j if tg[j] > t_last else j + 1)
+    m = len(tm)
+    ref = [ekf.q_body_to_icrs.copy(), ekf.bias_rad_s.copy(), ekf.P.copy(), np.zeros(m, bool), np.empty((6, 6)),
+           np.empty((6, 6)), np.empty(3), np.zeros(m), np.zeros((m, 3)), np.zeros((m, 3, 3))]
+    tg_cut = tg[:j + 1].copy()
+    tg_cut[j] = t_last
+    q, b, P, acc, phi, qd, zl, nis, zs, ss = ref
+    scalars = kf.fuse_frame_timed(q, b, P, float(ekf.t_s), wg[:j + 1], tg_cut, qm, tm, rs, ekf.sigma_v, ekf.sigma_u,
+                                  30.0, acc, phi, qd, zl, rn[:j + 1], nis, zs, ss, u, np.inf, 4.0)
+    assert out[3:9] == scalars and scalars[2]
+    for x, y in zip(out[9:], ref):
+        assert np.array_equal(x, y)
+
+
+def test_reported_attitude_kernel_is_the_widened_block_and_its_nis():
+    """kernels.filter.reported_attitude: the attitude block of P with its diagonal widened (or not), the NIS of the
+    estimate's error (scipy's rotation vector of q̂* ⊗ q_true) on it, and its largest variance."""
+    from scipy.spatial.transform import Rotation
+
+    from startracker.kernels import filter as kf
+
+    rng = np.random.default_rng(6)
+    a = rng.normal(size=(6, 6)) * 1e-5
+    P = a @ a.T + np.eye(6) * 1e-12
+    q_est = quat_random(rng)
+    q_true = quat_multiply(q_est, quat_from_rotvec(rng.normal(size=3) * 2e-5))
+    for widen, extra in ((False, 0.0), (True, 3e-11)):
+        cov, nis, max_var = kf.reported_attitude(q_true, q_est, P, widen, extra)
+        cov_ref = P[:3, :3] + (np.eye(3) * extra if widen else 0.0)
+        np.testing.assert_allclose(cov, cov_ref, rtol=1e-15, atol=0)
+        d = (Rotation.from_quat(q_est[[1, 2, 3, 0]]).inv() * Rotation.from_quat(q_true[[1, 2, 3, 0]])).as_rotvec()
+        np.testing.assert_allclose(nis, d @ np.linalg.solve(cov_ref, d), rtol=1e-9)
+        assert max_var == max(cov[0, 0], cov[1, 1], cov[2, 2])

@@ -16,10 +16,14 @@ rotation vector ``z = log(q̂* ⊗ q_meas)`` of an attitude sample, ``H = [I₃,
 - :func:`innovation_window`: the innovation monitor's statistics (spread and mean of the innovations over the
   window, the newest delivery's mean and its largest NIS);
 - :func:`timing_statistic`: the timing test of a delivery along the body rate, before it is fused, and
-  :func:`fuse_frame_timed`: the test against the prediction, then the fusion when it passes, in one call;
+  :func:`fuse_frame_timed`: the test against the prediction, then the fusion when it passes, in one call
+  (:func:`fuse_buffer_timed`: the same on the delayed fusion's buffer, with its copies and outputs);
 - :func:`gyro_jump_statistic`: the gyro jump monitor's test for a step in the readings (a bias that jumped), and
   :func:`gyro_jump_looks`: its two looks of a span (its own window, then the previous span's again) in one call;
-- :func:`append_intervals`: the delayed fusion's gyro buffer with a span's intervals appended;
+- :func:`append_intervals`: the delayed fusion's gyro buffer with a span's intervals appended, and
+  :func:`propagate_buffer`: the estimate at the buffer's end (the estimate *now*);
+- :func:`reported_attitude`: the estimate's reported covariance, its verdict's NIS against the truth and its largest
+  variance, in one call;
 - :func:`delivery_rows` / :func:`delivery_counts`: a delivery's samples made unit (and whether they are in time
   order), and its tallies after fusion (the last accepted sample, wrong and confidently wrong samples).
 
@@ -35,9 +39,12 @@ import math
 import numpy as np
 from numba import njit
 
+from startracker.kernels.sensor import consistency_nis
+
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
            "innovation_window", "timing_statistic", "fuse_frame_timed", "saturated_rate_noise", "gyro_jump_statistic",
-           "gyro_jump_looks", "delivery_rows", "delivery_counts", "append_intervals"]
+           "gyro_jump_looks", "delivery_rows", "delivery_counts", "append_intervals", "propagate_buffer",
+           "reported_attitude", "fuse_buffer_timed"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -988,3 +995,195 @@ def append_intervals(tg, wg, rn, t_new, w_new, rn_new):
             wg2[n + i, a] = w_new[i, a]
             rn2[n + i, a] = 0.0 if zero_noise else rn_new[i, a]
     return tg2, wg2, rn2
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def propagate_buffer(q, b, P, t_s, wg, tg, rate_noise, sigma_v, sigma_u):
+    """The estimate at the end of a gyro buffer: :func:`fuse_frame` without samples on copies of ``q``, ``b``, ``P``.
+
+    Parameters
+    ----------
+    q : ndarray, shape (4,)
+        Attitude estimate (w, x, y, z), unit, at ``t_s`` (not changed).
+    b : ndarray, shape (3,)
+        Gyro bias estimate, rad/s (not changed).
+    P : ndarray, shape (6, 6)
+        Error covariance, rad² and (rad/s)² (not changed).
+    t_s : float
+        Time of the estimate, s.
+    wg : ndarray, shape (G, 3)
+        Measured gyro rates of the buffered intervals, rad/s (G >= 1).
+    tg : ndarray, shape (G,)
+        End of each interval, s, strictly increasing.
+    rate_noise : ndarray, shape (G, 3)
+        Extra angle-random-walk variance density of each interval, rad²/s (see :func:`fuse_frame`).
+    sigma_v, sigma_u : float
+        Angle random walk (rad/√s) and bias random walk (rad/s/√s).
+
+    Returns
+    -------
+    q_now : ndarray, shape (4,)
+        Attitude at ``tg[-1]``.
+    b_now : ndarray, shape (3,)
+        Bias, rad/s.
+    P_now : ndarray, shape (6, 6)
+        Error covariance.
+    omega : ndarray, shape (3,)
+        Bias-corrected rate of the last interval ``wg[-1] - b_now``, rad/s.
+    t_now : float
+        ``tg[-1]``, s.
+    """
+    q2 = np.empty(4)
+    b2 = np.empty(3)
+    P2 = np.empty((6, 6))
+    for i in range(4):
+        q2[i] = q[i]
+    for i in range(3):
+        b2[i] = b[i]
+    for i in range(6):
+        for j in range(6):
+            P2[i, j] = P[i, j]
+    fuse_frame(q2, b2, P2, t_s, wg, tg, np.empty((0, 4)), np.empty(0), np.empty((0, 3, 3)), sigma_v, sigma_u, math.inf,
+               np.empty(0, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3), rate_noise, np.empty(0),
+               np.empty((0, 3)), np.empty((0, 3, 3)))
+    n = tg.shape[0]
+    omega = np.empty(3)
+    for a in range(3):
+        omega[a] = wg[n - 1, a] - b2[a]
+    return q2, b2, P2, omega, tg[n - 1]
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def reported_attitude(q_true, q, P, widen, extra_rad2):
+    """The reported attitude covariance of an estimate, its verdict's NIS against the truth and its largest variance.
+
+    The covariance is the attitude block of ``P``, its diagonal widened by ``extra_rad2`` when ``widen`` (a drift the
+    monitors may have missed); the NIS is :func:`startracker.kernels.sensor.consistency_nis` of ``q`` on it.
+
+    Parameters
+    ----------
+    q_true : ndarray, shape (4,)
+        True attitude (w, x, y, z), unit.
+    q : ndarray, shape (4,)
+        Estimated attitude, unit.
+    P : ndarray, shape (6, 6) (or at least (3, 3))
+        Error covariance; its upper-left (3, 3) block, rad², is the attitude's.
+    widen : bool
+        Whether ``extra_rad2`` is added to the diagonal.
+    extra_rad2 : float
+        Variance added to each axis, rad².
+
+    Returns
+    -------
+    cov : ndarray, shape (3, 3)
+        Reported attitude covariance, rad² (a new array).
+    nis : float
+        ``δθᵀ cov⁻¹ δθ`` with ``δθ = log(q* ⊗ q_true)`` (χ²(3) when the covariance tells the truth).
+    max_var : float
+        The largest diagonal element of ``cov`` (the first of equals; Python's ``max`` of the three), rad².
+    """
+    cov = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            cov[i, j] = P[i, j]
+    if widen:
+        cov[0, 0] += extra_rad2
+        cov[1, 1] += extra_rad2
+        cov[2, 2] += extra_rad2
+    qt = np.empty((1, 4))
+    qe = np.empty((1, 4))
+    for i in range(4):
+        qt[0, i] = q_true[i]
+        qe[0, i] = q[i]
+    c3 = np.empty((1, 3, 3))
+    for i in range(3):
+        for j in range(3):
+            c3[0, i, j] = cov[i, j]
+    nis = consistency_nis(qt, qe, c3)[0]
+    max_var = cov[0, 0]
+    if cov[1, 1] > max_var:
+        max_var = cov[1, 1]
+    if cov[2, 2] > max_var:
+        max_var = cov[2, 2]
+    return cov, nis, max_var
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def fuse_buffer_timed(q, b, P, t_s, wg_buf, tg_buf, rn_buf, qm, tm, rs, sigma_v, sigma_u, gate_chi2, u, timing_chi2_max,
+                      loose_ratio):
+    """:func:`fuse_frame_timed` of a delivery on the delayed fusion's gyro buffer, on fresh copies of the filter.
+
+    The buffered intervals up to the last sample's instant ``tm[-1]`` are taken, the one covering it (the first that
+    ends at or after it) cut there, and :func:`fuse_frame_timed` runs on copies of ``q``, ``b``, ``P`` with fresh
+    output arrays: the arithmetic of :meth:`startracker.filter.DelayedFusion.fuse_timed`'s usual case in one call.
+
+    Parameters
+    ----------
+    q, b, P, t_s :
+        The filter (as :func:`fuse_frame`; not changed).
+    wg_buf, tg_buf, rn_buf : ndarray, shape (n, 3), (n,), (n, 3)
+        The buffer's rates (rad/s), interval ends (s, strictly increasing) and extra rate noise (rad²/s).
+    qm, tm, rs :
+        The samples (M >= 1, time order, ``tm[0] >= t_s``), as :func:`fuse_frame`.
+    sigma_v, sigma_u, gate_chi2 :
+        As :func:`fuse_frame`.
+    u, timing_chi2_max, loose_ratio :
+        As :func:`fuse_frame_timed`.
+
+    Returns
+    -------
+    reached : bool
+        Whether a buffered interval reaches ``tm[-1]``; when not, nothing else is computed (the arrays are empty and
+        the scalars zero).
+    j : int
+        The buffered interval covering ``tm[-1]`` (``np.searchsorted(tg_buf, tm[-1])``; ``n`` when none reaches it).
+    keep_from : int
+        The first buffered interval that ends after ``tm[-1]`` (the buffer to keep after a fusion).
+    statistic, loose, fused, t_end, n_accepted, n_propagations :
+        As :func:`fuse_frame_timed`.
+    q_new, b_new, P_new : ndarray, shape (4,), (3,), (6, 6)
+        The filter after the fusion (the copies, unchanged when not fused).
+    accepted, phi, qd, z_last, nis, z, s : ndarray, shape (M,), (6, 6), (6, 6), (3,), (M,), (M, 3), (M, 3, 3)
+        The outputs of :func:`fuse_frame` (``phi``, ``qd`` and ``z_last`` as allocated, uninitialised, when there was
+        no propagation or sample).
+    """
+    m = qm.shape[0]
+    n = tg_buf.shape[0]
+    t_last = tm[m - 1]
+    j = 0  # np.searchsorted(tg_buf, t_last, side="left")
+    while j < n and tg_buf[j] < t_last:
+        j += 1
+    q2 = np.empty(4)
+    b2 = np.empty(3)
+    P2 = np.empty((6, 6))
+    accepted = np.empty(m, dtype=np.bool_)
+    phi = np.empty((6, 6))
+    qd = np.empty((6, 6))
+    z_last = np.empty(3)
+    nis = np.empty(m)
+    zs = np.empty((m, 3))
+    ss = np.empty((m, 3, 3))
+    if j == n:
+        return (False, j, j, 0.0, False, False, 0.0, 0, 0, q2, b2, P2, accepted, phi, qd, z_last, nis, zs, ss)
+    for i in range(4):
+        q2[i] = q[i]
+    for i in range(3):
+        b2[i] = b[i]
+    for i in range(6):
+        for k in range(6):
+            P2[i, k] = P[i, k]
+    tg = np.empty(j + 1)
+    wg = np.empty((j + 1, 3))
+    rn = np.empty((j + 1, 3))
+    for i in range(j + 1):
+        tg[i] = tg_buf[i]
+        for a in range(3):
+            wg[i, a] = wg_buf[i, a]
+            rn[i, a] = rn_buf[i, a]
+    tg[j] = t_last
+    stat, loose, fused, t, n_acc, n_prop = fuse_frame_timed(q2, b2, P2, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u,
+                                                            gate_chi2, accepted, phi, qd, z_last, rn, nis, zs, ss, u,
+                                                            timing_chi2_max, loose_ratio)
+    keep_from = j if tg_buf[j] > t_last else j + 1
+    return (True, j, keep_from, stat, loose, fused, t, n_acc, n_prop, q2, b2, P2, accepted, phi, qd, z_last, nis, zs,
+            ss)

@@ -651,6 +651,7 @@ class StarTrackerUnit:
         self._correction_before_jump = None  # the correction before a step found in the last span
         self._frame_latency_ms = 0.0
         self._frame_wall_ms = 0.0
+        self._reported = None  # the last reported covariance and its key (_protected_cov)
 
     @property
     def ekf(self) -> AttitudeEKF | None:
@@ -1006,7 +1007,7 @@ class StarTrackerUnit:
         NaN without ``q_true``). The last result is kept for :meth:`estimate` while ``now``, the last accepted instant
         and the allowance stay the same: the caller must not change ``cov`` (estimate copies it)."""
         key = (now, self._t_accepted, self.bias_allowance_rad_s)
-        kept = getattr(self, "_reported", None)  # (set here: none before the first report)
+        kept = self._reported
         if q_true is None and kept is not None and kept[0][0] is now and kept[0][1:] == key[1:]:
             return kept[1]
         q, P, t_s = now[0], now[2], now[4]

@@ -487,6 +487,7 @@ def _camera_constants(camera: Camera):
 
 
 _UNIT_PATH = {}
+_NO_ROTATIONS = np.empty((0, 3, 3))  # scene_frame's rotations output for a frame without bright bodies (never written)
 
 
 def _path_fractions(s: int) -> np.ndarray:
@@ -632,10 +633,14 @@ def compute_scenes(cameras: Sequence[Camera], catalog: StarCatalog, attitude: At
         (half_diag, q_cb, r_cb, pinhole, f_mm, k1, pix_mm, cx, cy, w_px, h_px, f_px) = _camera_constants(camera)
         if pinhole is not None and sampled:
             # the per-frame path: attitudes, cone search, projection and the kept stars' fields in one compiled call
-            r_cw, q_mid, q_cam_mid, idx, hip, vmag, bv, xy_path, visible = sk.scene_frame(
+            # the rotations only for the bright bodies' views; the other outputs packed by kind (one boxed array
+            # each), the fields their rows
+            r_cw = np.empty((path_times.size, 3, 3)) if bodies else _NO_ROTATIONS
+            q2, rows, mags, xy_path, visible = sk.scene_frame(
                 attitude[0], attitude[1], path_times.ravel(), q_cb, r_cb, s, *catalog.z_index, catalog.vectors,
                 catalog.hip, catalog.vmag, catalog.bv, half_diag, f_px, f_mm, k1, pix_mm, cx, cy, w_px, h_px,
-                float(margin), *pinhole)
+                float(margin), *pinhole, r_cw)
+            q_mid, q_cam_mid, idx, hip, vmag, bv = q2[0], q2[1], rows[0], rows[1], mags[0], mags[1]
         else:
             if q_bw is None:
                 q_bw = _evaluate_attitude(attitude, path_times.ravel(), validate)

@@ -680,8 +680,8 @@ class DelayedFusion:
         if ekf is not None and len(t_meas_s) and t_meas_s[0] >= ekf.t_s:
             # the usual case: one compiled call (the buffer's cut, the copies, the test and the fusion), then fuse's
             # bookkeeping
-            # (the filter's arrays come packed: q, b and z slices of one, P, phi and qd rows of another)
-            (reached, j, keep_from, stat, loose, fused, t, n_acc, n_prop, qbz, mats, acc, nis, zs,
+            # (the filter's arrays come packed: q, b, z and the NIS slices of one, P, phi and qd rows of another)
+            (reached, j, keep_from, stat, loose, fused, t, n_acc, n_prop, qbz, mats, acc, zs,
              ss) = kf.fuse_buffer_timed(
                 ekf.q_body_to_icrs, ekf.bias_rad_s, ekf.P, float(ekf.t_s), self._wg, self._tg, self._rn,
                 q_meas_body_to_icrs, t_meas_s, covariance_rad2, ekf.sigma_v, ekf.sigma_u,
@@ -689,8 +689,9 @@ class DelayedFusion:
             if reached:
                 if not fused:
                     return stat, loose, None
+                nis = qbz[10:]
                 ekf._take(qbz[:4], qbz[4:7], mats[0], t, n_acc, n_prop, self._wg[j], covariance_rad2[-1], mats[1],
-                          mats[2], qbz[7:], nis, zs, ss)
+                          mats[2], qbz[7:10], nis, zs, ss)
                 self.last_nis = nis
                 self.last_innovation_rad = zs
                 self.last_innovation_cov_rad2 = ss

@@ -301,8 +301,8 @@ def test_fuse_buffer_timed_kernel_is_the_cut_buffer_and_fuse_frame_timed(t_last)
                                   30.0, acc, phi, qd, zl, rn[:j + 1], nis, zs, ss, u, np.inf, 4.0)
     assert out[3:9] == scalars and scalars[2]
     qbz, mats = out[9], out[10]
-    got = [qbz[:4], qbz[4:7], mats[0], out[11], mats[1], mats[2], qbz[7:]] + list(out[12:])
-    assert len(out) == 15
+    got = [qbz[:4], qbz[4:7], mats[0], out[11], mats[1], mats[2], qbz[7:10], qbz[10:]] + list(out[12:])
+    assert len(out) == 14 and qbz.shape == (10 + m,)
     for x, y in zip(got, ref):
         assert np.array_equal(x, y)
 

@@ -1145,19 +1145,19 @@ def fuse_buffer_timed(q, b, P, t_s, wg_buf, tg_buf, rn_buf, qm, tm, rs, sigma_v,
         The first buffered interval that ends after ``tm[-1]`` (the buffer to keep after a fusion).
     statistic, loose, fused, t_end, n_accepted, n_propagations :
         As :func:`fuse_frame_timed`.
-    qbz : ndarray, shape (10,)
+    qbz : ndarray, shape (10 + M,)
         ``qbz[:4]``, ``qbz[4:7]``: ``q_new``, ``b_new``, the filter after the fusion (the copies, unchanged when not
-        fused); ``qbz[7:]``: ``z_last``.
+        fused); ``qbz[7:10]``: ``z_last``; ``qbz[10:]``: ``nis``.
     mats : ndarray, shape (3, 6, 6)
         ``mats[0]``: ``P_new`` (as ``q_new``); ``mats[1]``, ``mats[2]``: ``phi``, ``qd``.
-    accepted, nis, z, s : ndarray, shape (M,), (M,), (M, 3), (M, 3, 3)
+    accepted, z, s : ndarray, shape (M,), (M, 3), (M, 3, 3)
         The outputs of :func:`fuse_frame` (``phi``, ``qd`` and ``z_last`` as allocated, uninitialised, when there was
         no propagation or sample).
 
     Notes
     -----
-    The outputs of one shape class share one array (``q_new``, ``b_new``, ``z_last`` its contiguous slices, the
-    matrices its rows), written through those views: every array handed back to Python costs a boxing of its own.
+    The outputs of one shape class share one array (``q_new``, ``b_new``, ``z_last``, ``nis`` its contiguous slices,
+    the matrices its rows), written through those views: every array handed back to Python costs a boxing of its own.
     """
     m = qm.shape[0]
     n = tg_buf.shape[0]
@@ -1165,20 +1165,20 @@ def fuse_buffer_timed(q, b, P, t_s, wg_buf, tg_buf, rn_buf, qm, tm, rs, sigma_v,
     j = 0  # np.searchsorted(tg_buf, t_last, side="left")
     while j < n and tg_buf[j] < t_last:
         j += 1
-    qbz = np.empty(10)
+    qbz = np.empty(10 + m)
     q2 = qbz[0:4]
     b2 = qbz[4:7]
     z_last = qbz[7:10]
+    nis = qbz[10:]
     mats = np.empty((3, 6, 6))
     P2 = mats[0]
     phi = mats[1]
     qd = mats[2]
     accepted = np.empty(m, dtype=np.bool_)
-    nis = np.empty(m)
     zs = np.empty((m, 3))
     ss = np.empty((m, 3, 3))
     if j == n:
-        return (False, j, j, 0.0, False, False, 0.0, 0, 0, qbz, mats, accepted, nis, zs, ss)
+        return (False, j, j, 0.0, False, False, 0.0, 0, 0, qbz, mats, accepted, zs, ss)
     for i in range(4):
         q2[i] = q[i]
     for i in range(3):
@@ -1199,4 +1199,4 @@ def fuse_buffer_timed(q, b, P, t_s, wg_buf, tg_buf, rn_buf, qm, tm, rs, sigma_v,
                                                             gate_chi2, accepted, phi, qd, z_last, rn, nis, zs, ss, u,
                                                             timing_chi2_max, loose_ratio)
     keep_from = j if tg_buf[j] > t_last else j + 1
-    return (True, j, keep_from, stat, loose, fused, t, n_acc, n_prop, qbz, mats, accepted, nis, zs, ss)
+    return (True, j, keep_from, stat, loose, fused, t, n_acc, n_prop, qbz, mats, accepted, zs, ss)

@@ -815,11 +815,10 @@ def track_frame_from_state(q_state, omega, alpha, t_exp, t_ref, q_cam_to_body, h
     values : ndarray, shape (2, N)
         ``values[0]``: residual_rms_arcsec per instant, as :func:`track_frame`; ``values[1, :m]``: the m kept
         instants' times, s (the rest uninitialised).
-    counts : ndarray of int64, shape (3, N)
+    counts : ndarray of int64, shape (4, N)
         ``counts[0]``: n_stars per instant, as :func:`track_frame`; ``counts[1, :m]``, ``counts[2, :m]``: the kept
-        instants (ascending) and their stars (the rest uninitialised).
-    ok : ndarray of bool, shape (N,)
-        Per instant, as :func:`track_frame`.
+        instants (ascending) and their stars (the rest uninitialised); ``counts[3]``: 1 where :func:`track_frame`'s
+        ``ok`` (solved), else 0.
     q, covariance_rad2 : ndarray, shapes (m, 4), (m, 3, 3)
         The kept instants' attitudes and scaled covariances (rad²), fresh arrays.
 
@@ -848,15 +847,16 @@ def track_frame_from_state(q_state, omega, alpha, t_exp, t_ref, q_cam_to_body, h
     n_off, kept, t_s, q_k, cov_k, n_k = accept_instants(true_indices(ok), t_exp, q_pred, q, cov, rms, n_used,
                                                         instant_gate, residual_expected_arcsec, scale_by_residuals)
     values = np.empty((2, n))
-    counts = np.empty((3, n), dtype=np.int64)
+    counts = np.empty((4, n), dtype=np.int64)
     for i in range(n):
         values[0, i] = rms[i]
         counts[0, i] = n_used[i]
+        counts[3, i] = 1 if ok[i] else 0
     for k in range(kept.shape[0]):
         values[1, k] = t_s[k]
         counts[1, k] = kept[k]
         counts[2, k] = n_k[k]
-    return n_pred, n_matched, nis, n_off, values, counts, ok, q_k, cov_k
+    return n_pred, n_matched, nis, n_off, values, counts, q_k, cov_k
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

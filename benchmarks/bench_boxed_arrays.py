@@ -21,21 +21,29 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import gymnasium as gym  # noqa: E402
 import numba.core.serialize as serialize  # noqa: E402
 
-import envs  # noqa: E402,F401
-from policies import EigenaxisSlewPolicy  # noqa: E402
-
 COUNTS = collections.Counter()
+COUNTING = [False]
 UNPICKLE = serialize._numba_unpickle
 
 
 def counting_unpickle(*args):
-    frame = inspect.currentframe().f_back  # the Python frame that called the kernel
-    COUNTS[(Path(frame.f_code.co_filename).relative_to(ROOT) if frame.f_code.co_filename.startswith(str(ROOT))
-            else frame.f_code.co_filename, frame.f_lineno, frame.f_code.co_name)] += 1
+    if COUNTING[0]:
+        frame = inspect.currentframe().f_back  # the Python frame that called the kernel
+        name = frame.f_code.co_filename
+        COUNTS[(str(Path(name).relative_to(ROOT)) if name.startswith(str(ROOT)) else name, frame.f_lineno,
+                frame.f_code.co_name)] += 1
     return UNPICKLE(*args)
+
+
+# installed before any kernel is loaded: compiled code holds the function it finds at load time
+serialize._numba_unpickle = counting_unpickle
+
+import gymnasium as gym  # noqa: E402
+
+import envs  # noqa: E402,F401
+from policies import EigenaxisSlewPolicy  # noqa: E402
 
 
 def run(episodes: int, kwargs: dict) -> int:
@@ -59,10 +67,9 @@ def main() -> None:
     args = parser.parse_args()
     kwargs = json.loads(args.env_kwargs)
     run(1, kwargs)  # compiled kernels loaded, caches warm
-    serialize._numba_unpickle = counting_unpickle
-    COUNTS.clear()
+    COUNTING[0] = True
     steps = run(args.episodes, kwargs)
-    serialize._numba_unpickle = UNPICKLE
+    COUNTING[0] = False
     print(f"{steps} steps; boxed arrays per step by call site:")
     for (path, line, func), n in COUNTS.most_common(25):
         print(f"  {n / steps:6.2f}  {path}:{line} ({func})")

@@ -370,12 +370,13 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
-def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, n_path_samples, vectors_by_z, z_sorted,
+def scene_frame(t_samples, q_samples, t_first, start_steps, path_steps, instants, q_cam_to_body, r_cam_to_body,
+                n_path_samples, vectors_by_z, z_sorted,
                 z_order, vectors, hip, vmag, bv, half_diag_rad, focal_length_px, focal_length_mm, k1_per_mm2,
                 pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px, cos_rot, sin_rot, r_cam_to_icrs):
-    """A pinhole camera's frame from a sampled attitude history, in one call: :func:`interpolate_attitudes` at the
-    path instants, :func:`camera_frames`, the cone search of the catalog around the mean boresight, then
-    :func:`project_scene` and the catalog fields of the kept stars.
+    """A pinhole camera's frame from a sampled attitude history, in one call: the path instants, then
+    :func:`interpolate_attitudes` at them, :func:`camera_frames`, the cone search of the catalog around the mean
+    boresight, then :func:`project_scene` and the catalog fields of the kept stars.
 
     The cone's half-angle is ``min(half_diag_rad + drift + (margin_px + 2) / focal_length_px + 1e-6, π)`` (the
     detector's corners, the boresight's motion over the frame and the margin), the chord test widened by 1e-12
@@ -387,8 +388,15 @@ def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, 
         Strictly increasing sample times of the attitude history, s (T >= 2).
     q_samples : ndarray, shape (T, 4)
         Its non-zero body-to-ICRS attitudes.
-    path_times : ndarray, shape (P,)
-        The ``P = N S`` path instants, exposure-major, s.
+    t_first : float
+        Start of the first exposure, s.
+    start_steps : ndarray, shape (N,)
+        Exposure starts after ``t_first``, s.
+    path_steps : ndarray, shape (S,)
+        Path instants after an exposure's start, s: path instant ``(i, j)`` is ``(t_first + start_steps[i]) +
+        path_steps[j]`` (numpy's ``np.add.outer(t_first + start_steps, path_steps)``, the same sums).
+    instants : ndarray, shape (N S + N,)
+        Output: the ``P = N S`` path instants, exposure-major, then the N mid instants (``j = S // 2``), s.
     q_cam_to_body : ndarray, shape (4,)
     r_cam_to_body : ndarray, shape (3, 3)
     n_path_samples : int
@@ -424,7 +432,14 @@ def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, 
     The outputs of one kind share one array (each row a C-contiguous view for the caller's fields): every array
     handed back to Python costs a boxing of its own.
     """
-    q_bw = interpolate_attitudes(t_samples, q_samples, path_times)
+    n_exp = start_steps.shape[0]
+    p = n_exp * n_path_samples
+    for i in range(n_exp):
+        start = t_first + start_steps[i]
+        for j in range(n_path_samples):
+            instants[i * n_path_samples + j] = start + path_steps[j]
+        instants[p + i] = instants[i * n_path_samples + n_path_samples // 2]
+    q_bw = interpolate_attitudes(t_samples, q_samples, instants[:p])
     r_cw, q_cam_mid, centre, drift = camera_frames(q_bw, q_cam_to_body, r_cam_to_body, n_path_samples)
     radius = half_diag_rad + drift + (margin_px + 2.0) / focal_length_px + 1e-6
     if math.pi < radius:  # min(radius, π) as Python's min has it

@@ -555,9 +555,9 @@ class DelayedFusion:
         g = len(t_gyro_s)
         if g == 0:
             return
-        self._tg, self._wg, self._rn = kf.append_intervals(
-            self._tg, self._wg, self._rn, t_gyro_s, omega_gyro,
-            _NO_RATE_NOISE if rate_noise_rad2_s is None else rate_noise_rad2_s)
+        self._tg, wr = kf.append_intervals(self._tg, self._wg, self._rn, t_gyro_s, omega_gyro,
+                                           _NO_RATE_NOISE if rate_noise_rad2_s is None else rate_noise_rad2_s)
+        self._wg, self._rn = wr[0], wr[1]  # rows of one array (one boxed array)
         self.t_s = float(self._tg[-1])
         self._now = None
         old = self.t_s - self.horizon_s
@@ -680,7 +680,8 @@ class DelayedFusion:
         if ekf is not None and len(t_meas_s) and t_meas_s[0] >= ekf.t_s:
             # the usual case: one compiled call (the buffer's cut, the copies, the test and the fusion), then fuse's
             # bookkeeping
-            (reached, j, keep_from, stat, loose, fused, t, n_acc, n_prop, q, b, P, acc, phi, qd, z, nis, zs,
+            # (the filter's arrays come packed: q, b, z and the NIS slices of one, P, phi and qd rows of another)
+            (reached, j, keep_from, stat, loose, fused, t, n_acc, n_prop, qbz, mats, acc, zs,
              ss) = kf.fuse_buffer_timed(
                 ekf.q_body_to_icrs, ekf.bias_rad_s, ekf.P, float(ekf.t_s), self._wg, self._tg, self._rn,
                 q_meas_body_to_icrs, t_meas_s, covariance_rad2, ekf.sigma_v, ekf.sigma_u,
@@ -688,7 +689,9 @@ class DelayedFusion:
             if reached:
                 if not fused:
                     return stat, loose, None
-                ekf._take(q, b, P, t, n_acc, n_prop, self._wg[j], covariance_rad2[-1], phi, qd, z, nis, zs, ss)
+                nis = qbz[10:]
+                ekf._take(qbz[:4], qbz[4:7], mats[0], t, n_acc, n_prop, self._wg[j], covariance_rad2[-1], mats[1],
+                          mats[2], qbz[7:10], nis, zs, ss)
                 self.last_nis = nis
                 self.last_innovation_rad = zs
                 self.last_innovation_cov_rad2 = ss

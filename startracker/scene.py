@@ -487,6 +487,7 @@ def _camera_constants(camera: Camera):
 
 
 _UNIT_PATH = {}
+_NO_ROTATIONS = np.empty((0, 3, 3))  # scene_frame's rotations output for a frame without bright bodies (never written)
 
 
 def _path_fractions(s: int) -> np.ndarray:
@@ -622,20 +623,36 @@ def compute_scenes(cameras: Sequence[Camera], catalog: StarCatalog, attitude: At
 
     n = plan.n_exposures
     start_steps, path_steps, mid_rows = _plan_offsets(plan, s)
-    starts = (t0 + plan.start_offset_s) + start_steps
-    path_times = np.add.outer(starts, path_steps)  # starts[:, None] + path_steps[None, :]
-    times = path_times[:, s // 2].copy()
+    t_first = t0 + plan.start_offset_s
     sampled = not validate and isinstance(attitude, tuple) and len(attitude) == 2
+    first = _camera_constants(cameras[0]) if sampled and len(cameras) == 1 else None
+    if first is not None and first[3] is not None:
+        # the per-frame path: scene_frame fills the instants (path instants, then the mid ones) in its call
+        instants = np.empty(n * s + n)
+        path_times = instants[:n * s].reshape(n, s)
+        times = instants[n * s:]
+    else:
+        instants = None
+        path_times = np.add.outer(t_first + start_steps, path_steps)  # starts[:, None] + path_steps[None, :]
+        times = path_times[:, s // 2].copy()
     q_bw = None
     out = []
     for camera in cameras:
-        (half_diag, q_cb, r_cb, pinhole, f_mm, k1, pix_mm, cx, cy, w_px, h_px, f_px) = _camera_constants(camera)
+        (half_diag, q_cb, r_cb, pinhole, f_mm, k1, pix_mm, cx, cy, w_px, h_px,
+         f_px) = _camera_constants(camera) if first is None else first
         if pinhole is not None and sampled:
             # the per-frame path: attitudes, cone search, projection and the kept stars' fields in one compiled call
-            r_cw, q_mid, q_cam_mid, idx, hip, vmag, bv, xy_path, visible = sk.scene_frame(
-                attitude[0], attitude[1], path_times.ravel(), q_cb, r_cb, s, *catalog.z_index, catalog.vectors,
+            # the rotations only for the bright bodies' views; the other outputs packed by kind (one boxed array
+            # each), the fields their rows
+            r_cw = np.empty((path_times.size, 3, 3)) if bodies else _NO_ROTATIONS
+            if instants is None:  # several cameras: the instants computed above, written again (the same sums)
+                instants = np.concatenate([path_times.ravel(), times])
+            q2, rows, mags, xy_path, visible = sk.scene_frame(
+                attitude[0], attitude[1], t_first, start_steps, path_steps, instants, q_cb, r_cb, s, *catalog.z_index,
+                catalog.vectors,
                 catalog.hip, catalog.vmag, catalog.bv, half_diag, f_px, f_mm, k1, pix_mm, cx, cy, w_px, h_px,
-                float(margin), *pinhole)
+                float(margin), *pinhole, r_cw)
+            q_mid, q_cam_mid, idx, hip, vmag, bv = q2[0], q2[1], rows[0], rows[1], mags[0], mags[1]
         else:
             if q_bw is None:
                 q_bw = _evaluate_attitude(attitude, path_times.ravel(), validate)

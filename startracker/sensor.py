@@ -732,16 +732,22 @@ class StarTracker:
         if self._frame_model is not None:
             # the state's attitude normalised, prediction's attitudes, cone search, projection, matching, N Wahba,
             # innovation, then the smoothness test and covariance scaling of the solved instants: one compiled call
-            frame = track_kernels.track_frame_from_state(
+            (n_pred, n_matched, nis, n_off, values, counts, q_sol,
+             cov_sol) = track_kernels.track_frame_from_state(
                 st.q_body_to_icrs, omega, alpha, t_exp, t_ref, self._q_cam_to_body, self._half_diag_fov_rad, self._f_px,
                 *self.catalog.z_index, self.catalog.vectors, *self._frame_model, xy, float(r), self.matcher == "brute",
                 self._r_cam_to_body, self.sigma_rad, self.min_stars_per_instant, self.outlier_k_sigma * self.sigma_rad,
                 st.cov_theta_rad2, cov_w, cov_a, self._intensity, self._flux, self.blend_flux_ratio, self.instant_gate,
                 self._residual_expected_arcsec, self.scale_by_residuals)
+            # its per-instant arrays packed by kind (one boxed array each): rows and the kept instants' row slices;
+            # the solved instants' flags (counts[3]) as booleans only when some instant is not solved
+            m = len(q_sol)
+            rms_all, n_stars, t_s, kept, n_sol = values[0], counts[0], values[1, :m], counts[1, :m], counts[2, :m]
+            ok = None
         else:
-            frame = self._track_stages(xy, t_exp, st.q_body_to_icrs, t_ref, omega, alpha, float(r), st.cov_theta_rad2,
-                                       cov_w, cov_a)
-        n_pred, n_matched, rms_all, n_stars, ok, nis, n_off, kept, t_s, q_sol, cov_sol, n_sol = frame
+            (n_pred, n_matched, rms_all, n_stars, ok, nis, n_off, kept, t_s, q_sol, cov_sol,
+             n_sol) = self._track_stages(xy, t_exp, st.q_body_to_icrs, t_ref, omega, alpha, float(r), st.cov_theta_rad2,
+                                         cov_w, cov_a)
         latency = (time.perf_counter() - t0) * 1e3
         if n_pred == 0:
             return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
@@ -756,6 +762,8 @@ class StarTracker:
             else:
                 rms = math.sqrt(float(np.dot(rms_all, rms_all)) / n_ok)
         else:
+            if ok is None:
+                ok = counts[3] != 0
             skipped = tuple((~ok).nonzero()[0].tolist())
             if n_ok:
                 res_ok = rms_all[ok.nonzero()[0]]

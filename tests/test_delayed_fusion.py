@@ -300,7 +300,10 @@ def test_fuse_buffer_timed_kernel_is_the_cut_buffer_and_fuse_frame_timed(t_last)
     scalars = kf.fuse_frame_timed(q, b, P, float(ekf.t_s), wg[:j + 1], tg_cut, qm, tm, rs, ekf.sigma_v, ekf.sigma_u,
                                   30.0, acc, phi, qd, zl, rn[:j + 1], nis, zs, ss, u, np.inf, 4.0)
     assert out[3:9] == scalars and scalars[2]
-    for x, y in zip(out[9:], ref):
+    qbz, mats = out[9], out[10]
+    got = [qbz[:4], qbz[4:7], mats[0], out[11], mats[1], mats[2], qbz[7:10], qbz[10:]] + list(out[12:])
+    assert len(out) == 14 and qbz.shape == (10 + m,)
+    for x, y in zip(got, ref):
         assert np.array_equal(x, y)
 
 

@@ -12,7 +12,7 @@ from startracker.kernels import sensor as sk
 from startracker.kernels import track as tk
 from startracker.kernels.rotations import normalize_rows
 from startracker.rotations import quat_from_rotvec, quat_integrate, quat_multiply, quat_random
-from startracker.scene import ExposurePlan, compute_scene
+from startracker.scene import BrightBody, ExposurePlan, compute_scene
 from startracker.simulation import simulate_tracking_frame
 from startracker.track import camera_projection_model
 
@@ -30,6 +30,13 @@ def test_scene_frame_is_the_stepwise_scene(cam, nav):
     for name in ("star_index", "hip", "vmag", "bv", "xy_path", "visible", "q_body_to_icrs", "q_cam_to_icrs", "times",
                  "path_times"):
         np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
+    # with a bright body the compiled call also fills the rotations its view needs
+    sun = BrightBody("sun", (0.3, -0.5, 0.8))
+    fast = compute_scene(cam, nav, (t_s, q_s), plan, 0.05, bright_bodies=(sun,), validate=False)
+    slow = compute_scene(cam, nav, (t_s, q_s), plan, 0.05, bright_bodies=(sun,))
+    np.testing.assert_array_equal(fast.bright_bodies[0].angle_rad, slow.bright_bodies[0].angle_rad)
+    np.testing.assert_array_equal(fast.bright_bodies[0].direction_cam, slow.bright_bodies[0].direction_cam)
+    np.testing.assert_array_equal(fast.xy_path, slow.xy_path)
 
 
 def test_track_frame_from_state_is_propagation_cone_and_frame(cam, nav):
@@ -65,7 +72,12 @@ def test_track_frame_from_state_is_propagation_cone_and_frame(cam, nav):
     want = (n_pred, n_matched, rms, n_used, ok, nis) + sk.accept_instants(np.flatnonzero(ok), times, q_pred, q, cov,
                                                                          rms, n_used, *accept)
     assert not np.array_equal(want[10], cov[ok])  # the scaling ran
-    assert len(got) == len(want)
+    n_pred, n_matched, nis, n_off, values, counts, q_got, cov_got = got
+    m = len(want[7])
+    assert set(counts[3].tolist()) <= {0, 1}
+    got = (n_pred, n_matched, values[0], counts[0], counts[3] == 1, nis, n_off, counts[1, :m], values[1, :m], q_got,
+           cov_got, counts[2, :m])
+    assert len(got) == len(want) and values.shape == (2, len(times)) and counts.dtype == np.int64
     for a, b in zip(got, want):
         np.testing.assert_array_equal(a, b)
 

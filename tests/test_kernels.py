@@ -634,7 +634,8 @@ def test_buffer_append_and_nonpositive_test_equal_numpy():
         tg, wg, rn = rng.random(n), rng.normal(size=(n, 3)), rng.random((n, 3))
         t_new, w_new, rn_new = rng.random(g), rng.normal(size=(g, 3)), rng.random((g, 3))
         for noise in (rn_new, np.zeros((0, 3))):
-            out = fk.append_intervals(tg, wg, rn, t_new, w_new, noise)
+            t_out, wr = fk.append_intervals(tg, wg, rn, t_new, w_new, noise)
+            out = (t_out, wr[0], wr[1])
             ref_noise = noise if len(noise) else np.zeros((g, 3))
             for a, b in zip(out, (np.concatenate([tg, t_new]), np.concatenate([wg, w_new]),
                                   np.concatenate([rn, ref_noise]))):

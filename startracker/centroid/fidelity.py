@@ -264,11 +264,14 @@ def draw_centroid_inputs(scene: Scene, model: SensorModel, rng, k_sigma: float, 
 def _centroid_fidelity(scene: Scene, model: SensorModel, rng, k_sigma, err: CentroidErrorModel, include_false: bool) -> Centroids:
     """The centroid fidelity (module docstring): the draws of the frame (:func:`draw_centroid_inputs`), then one kernel
     call (:func:`startracker.kernels.centroid.centroid_detections`)."""
-    xy, inten, area, sat, peak, snr, star, expo, kind, truth_xy, bg_dn, noise_dn = ck.centroid_detections(
+    xys, vals, labels, sat, bg_dn, noise_dn = ck.centroid_detections(
         *draw_centroid_inputs(scene, model, rng, k_sigma, err, include_false))
+    # the kernel's outputs packed by kind (one boxed array each), the fields their rows (indexing: cheaper than
+    # unpacking an array by iteration)
     return build_checked(Centroids, {
-        "xy": xy, "intensity": inten, "area": area, "saturated": sat, "peak": peak, "snr": snr, "background_dn": bg_dn,
-        "noise_dn": noise_dn, "truth_star": star, "truth_exposure": expo, "truth_kind": kind, "truth_xy": truth_xy})
+        "xy": xys[0], "intensity": vals[0], "area": labels[0], "saturated": sat, "peak": vals[1], "snr": vals[2],
+        "background_dn": bg_dn, "noise_dn": noise_dn, "truth_star": labels[1], "truth_exposure": labels[2],
+        "truth_kind": labels[3], "truth_xy": xys[1]})
 
 
 def candidate_pairs(xy: np.ndarray, r: float) -> np.ndarray:

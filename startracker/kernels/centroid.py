@@ -990,24 +990,20 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
 
     Returns
     -------
-    xy : ndarray, shape (K, 2)
-        Centroids, px.
-    intensity : ndarray, shape (K,)
-        DN above the background.
-    area : ndarray of int64, shape (K,)
+    xy : ndarray, shape (2, K, 2)
+        ``xy[0]``: the centroids, px; ``xy[1]``: where each source's light is centred, px.
+    values : ndarray, shape (3, K)
+        Rows: intensity (DN above the background), peak (above the background, DN, clipped at saturation) and snr.
+    labels : ndarray of int64, shape (4, K)
+        Rows: area (px), scene star index (−1 otherwise), exposure index (stars and debris, −1 otherwise) and kind.
     saturated : ndarray of bool, shape (K,)
-    peak : ndarray, shape (K,)
-        Peak above the background, DN (clipped at saturation).
-    snr : ndarray, shape (K,)
-    star : ndarray of int64, shape (K,)
-        Scene star index, −1 otherwise.
-    exposure : ndarray of int64, shape (K,)
-        Exposure index (stars and debris), −1 otherwise.
-    kind : ndarray of int64, shape (K,)
-    truth_xy : ndarray, shape (K, 2)
-        Where the source's light is centred, px.
     background_dn, noise_dn : float
         Background level and σ at the principal point, DN.
+
+    Notes
+    -----
+    The outputs of one kind share one array (each row a C-contiguous view for the caller's fields): every array
+    handed back to Python costs a boxing of its own.
     """
     c_id, c_g, c_src, n_optical, n_star = _candidates(
         xy_path, visible, star_pe, debris_xy0, debris_velocity_px_s, debris_pe, t_start_rel_s, t_end_rel_s,
@@ -1028,28 +1024,22 @@ def centroid_detections(xy_path, visible, star_pe, debris_xy0, debris_velocity_p
     bg_dn = (q_c + background[5]) / g_dn + sensor[7]
     noise_dn_c = math.sqrt((background[7] * q_c + background[5] + background[8] + (background[9] * q_c) ** 2) / g_dn ** 2
                            + 1.0 / 12.0)
-    xy = np.empty((q, 2))
-    truth_xy = np.empty((q, 2))
-    inten = np.empty(q)
-    peak = np.empty(q)
-    snr = np.empty(q)
-    area_o = np.empty(q, dtype=np.int64)
+    xy = np.empty((2, q, 2))
+    vals = np.empty((3, q))
+    labels = np.empty((4, q), dtype=np.int64)
     sat_o = np.empty(q, dtype=np.bool_)
-    star = np.empty(q, dtype=np.int64)
-    expo = np.empty(q, dtype=np.int64)
-    kind = np.empty(q, dtype=np.int64)
     for t in range(q):
         i = order[t]
-        xy[t, 0] = f[i, 0]
-        xy[t, 1] = f[i, 1]
-        truth_xy[t, 0] = f[i, 2]
-        truth_xy[t, 1] = f[i, 3]
-        inten[t] = f[i, 4]
-        peak[t] = f[i, 5]
-        snr[t] = f[i, 6]
-        area_o[t] = area[i]
+        xy[0, t, 0] = f[i, 0]
+        xy[0, t, 1] = f[i, 1]
+        xy[1, t, 0] = f[i, 2]
+        xy[1, t, 1] = f[i, 3]
+        vals[0, t] = f[i, 4]
+        vals[1, t] = f[i, 5]
+        vals[2, t] = f[i, 6]
+        labels[0, t] = area[i]
         sat_o[t] = sat[i]
-        star[t] = lab[i, 0]
-        expo[t] = lab[i, 1]
-        kind[t] = lab[i, 2]
-    return xy, inten, area_o, sat_o, peak, snr, star, expo, kind, truth_xy, bg_dn, noise_dn_c
+        labels[1, t] = lab[i, 0]
+        labels[2, t] = lab[i, 1]
+        labels[3, t] = lab[i, 2]
+    return xy, vals, labels, sat_o, bg_dn, noise_dn_c

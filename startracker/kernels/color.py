@@ -320,9 +320,9 @@ def fused_centroid_detections(inputs_r, inputs_g, inputs_b, affine_r, x0_r, q_r,
     det_g = centroid_detections(*inputs_g)
     det_b = centroid_detections(*inputs_b)
     noise = np.empty(3)
-    noise[0] = det_r[11]
-    noise[1] = det_g[11]
-    noise[2] = det_b[11]
-    return fuse_channels(det_r[0], det_g[0], det_b[0], det_r[1], det_g[1], det_b[1], det_r[2].astype(np.float64),
-                         det_g[2].astype(np.float64), det_b[2].astype(np.float64), noise, affine_r, x0_r, q_r, affine_b,
-                         x0_b, q_b, radius_px, min_channels, gain_e_per_dn)
+    noise[0] = det_r[5]
+    noise[1] = det_g[5]
+    noise[2] = det_b[5]
+    return fuse_channels(det_r[0][0], det_g[0][0], det_b[0][0], det_r[1][0], det_g[1][0], det_b[1][0],
+                         det_r[2][0].astype(np.float64), det_g[2][0].astype(np.float64), det_b[2][0].astype(np.float64),
+                         noise, affine_r, x0_r, q_r, affine_b, x0_b, q_b, radius_px, min_channels, gain_e_per_dn)

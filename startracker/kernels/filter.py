@@ -976,13 +976,17 @@ def append_intervals(tg, wg, rn, t_new, w_new, rn_new):
 
     Returns
     -------
-    tg, wg, rn : ndarray, shape (n + G,), (n + G, 3), (n + G, 3)
+    tg : ndarray, shape (n + G,)
+    wr : ndarray, shape (2, n + G, 3)
+        ``wr[0]``: the rates ``wg``; ``wr[1]``: the rate noise ``rn`` (one array: every array handed back to Python
+        costs a boxing of its own).
     """
     n = tg.shape[0]
     g = t_new.shape[0]
     tg2 = np.empty(n + g)
-    wg2 = np.empty((n + g, 3))
-    rn2 = np.empty((n + g, 3))
+    wr = np.empty((2, n + g, 3))
+    wg2 = wr[0]
+    rn2 = wr[1]
     for i in range(n):
         tg2[i] = tg[i]
         for a in range(3):
@@ -994,7 +998,7 @@ def append_intervals(tg, wg, rn, t_new, w_new, rn_new):
         for a in range(3):
             wg2[n + i, a] = w_new[i, a]
             rn2[n + i, a] = 0.0 if zero_noise else rn_new[i, a]
-    return tg2, wg2, rn2
+    return tg2, wr
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -1141,11 +1145,19 @@ def fuse_buffer_timed(q, b, P, t_s, wg_buf, tg_buf, rn_buf, qm, tm, rs, sigma_v,
         The first buffered interval that ends after ``tm[-1]`` (the buffer to keep after a fusion).
     statistic, loose, fused, t_end, n_accepted, n_propagations :
         As :func:`fuse_frame_timed`.
-    q_new, b_new, P_new : ndarray, shape (4,), (3,), (6, 6)
-        The filter after the fusion (the copies, unchanged when not fused).
-    accepted, phi, qd, z_last, nis, z, s : ndarray, shape (M,), (6, 6), (6, 6), (3,), (M,), (M, 3), (M, 3, 3)
+    qbz : ndarray, shape (10 + M,)
+        ``qbz[:4]``, ``qbz[4:7]``: ``q_new``, ``b_new``, the filter after the fusion (the copies, unchanged when not
+        fused); ``qbz[7:10]``: ``z_last``; ``qbz[10:]``: ``nis``.
+    mats : ndarray, shape (3, 6, 6)
+        ``mats[0]``: ``P_new`` (as ``q_new``); ``mats[1]``, ``mats[2]``: ``phi``, ``qd``.
+    accepted, z, s : ndarray, shape (M,), (M, 3), (M, 3, 3)
         The outputs of :func:`fuse_frame` (``phi``, ``qd`` and ``z_last`` as allocated, uninitialised, when there was
         no propagation or sample).
+
+    Notes
+    -----
+    The outputs of one shape class share one array (``q_new``, ``b_new``, ``z_last``, ``nis`` its contiguous slices,
+    the matrices its rows), written through those views: every array handed back to Python costs a boxing of its own.
     """
     m = qm.shape[0]
     n = tg_buf.shape[0]
@@ -1153,18 +1165,20 @@ def fuse_buffer_timed(q, b, P, t_s, wg_buf, tg_buf, rn_buf, qm, tm, rs, sigma_v,
     j = 0  # np.searchsorted(tg_buf, t_last, side="left")
     while j < n and tg_buf[j] < t_last:
         j += 1
-    q2 = np.empty(4)
-    b2 = np.empty(3)
-    P2 = np.empty((6, 6))
+    qbz = np.empty(10 + m)
+    q2 = qbz[0:4]
+    b2 = qbz[4:7]
+    z_last = qbz[7:10]
+    nis = qbz[10:]
+    mats = np.empty((3, 6, 6))
+    P2 = mats[0]
+    phi = mats[1]
+    qd = mats[2]
     accepted = np.empty(m, dtype=np.bool_)
-    phi = np.empty((6, 6))
-    qd = np.empty((6, 6))
-    z_last = np.empty(3)
-    nis = np.empty(m)
     zs = np.empty((m, 3))
     ss = np.empty((m, 3, 3))
     if j == n:
-        return (False, j, j, 0.0, False, False, 0.0, 0, 0, q2, b2, P2, accepted, phi, qd, z_last, nis, zs, ss)
+        return (False, j, j, 0.0, False, False, 0.0, 0, 0, qbz, mats, accepted, zs, ss)
     for i in range(4):
         q2[i] = q[i]
     for i in range(3):
@@ -1185,5 +1199,4 @@ def fuse_buffer_timed(q, b, P, t_s, wg_buf, tg_buf, rn_buf, qm, tm, rs, sigma_v,
                                                             gate_chi2, accepted, phi, qd, z_last, rn, nis, zs, ss, u,
                                                             timing_chi2_max, loose_ratio)
     keep_from = j if tg_buf[j] > t_last else j + 1
-    return (True, j, keep_from, stat, loose, fused, t, n_acc, n_prop, q2, b2, P2, accepted, phi, qd, z_last, nis, zs,
-            ss)
+    return (True, j, keep_from, stat, loose, fused, t, n_acc, n_prop, qbz, mats, accepted, zs, ss)

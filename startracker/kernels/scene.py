@@ -370,12 +370,13 @@ def project_scene(r_cam_to_icrs, vectors, index, focal_length_mm, k1_per_mm2, pi
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
-def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, n_path_samples, vectors_by_z, z_sorted,
+def scene_frame(t_samples, q_samples, t_first, start_steps, path_steps, instants, q_cam_to_body, r_cam_to_body,
+                n_path_samples, vectors_by_z, z_sorted,
                 z_order, vectors, hip, vmag, bv, half_diag_rad, focal_length_px, focal_length_mm, k1_per_mm2,
-                pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px, cos_rot, sin_rot):
-    """A pinhole camera's frame from a sampled attitude history, in one call: :func:`interpolate_attitudes` at the
-    path instants, :func:`camera_frames`, the cone search of the catalog around the mean boresight, then
-    :func:`project_scene` and the catalog fields of the kept stars.
+                pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px, cos_rot, sin_rot, r_cam_to_icrs):
+    """A pinhole camera's frame from a sampled attitude history, in one call: the path instants, then
+    :func:`interpolate_attitudes` at them, :func:`camera_frames`, the cone search of the catalog around the mean
+    boresight, then :func:`project_scene` and the catalog fields of the kept stars.
 
     The cone's half-angle is ``min(half_diag_rad + drift + (margin_px + 2) / focal_length_px + 1e-6, π)`` (the
     detector's corners, the boresight's motion over the frame and the margin), the chord test widened by 1e-12
@@ -387,8 +388,15 @@ def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, 
         Strictly increasing sample times of the attitude history, s (T >= 2).
     q_samples : ndarray, shape (T, 4)
         Its non-zero body-to-ICRS attitudes.
-    path_times : ndarray, shape (P,)
-        The ``P = N S`` path instants, exposure-major, s.
+    t_first : float
+        Start of the first exposure, s.
+    start_steps : ndarray, shape (N,)
+        Exposure starts after ``t_first``, s.
+    path_steps : ndarray, shape (S,)
+        Path instants after an exposure's start, s: path instant ``(i, j)`` is ``(t_first + start_steps[i]) +
+        path_steps[j]`` (numpy's ``np.add.outer(t_first + start_steps, path_steps)``, the same sums).
+    instants : ndarray, shape (N S + N,)
+        Output: the ``P = N S`` path instants, exposure-major, then the N mid instants (``j = S // 2``), s.
     q_cam_to_body : ndarray, shape (4,)
     r_cam_to_body : ndarray, shape (3, 3)
     n_path_samples : int
@@ -404,21 +412,34 @@ def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, 
     focal_length_px : float
     focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px, cy_px, n_cols, n_rows, margin_px, cos_rot, sin_rot
         As :func:`project_scene`.
+    r_cam_to_icrs : ndarray, shape (P, 3, 3) or (0, 3, 3)
+        Output: the camera-to-ICRS rotations at the path instants (:func:`camera_frames`), written when it has ``P``
+        rows (a caller that needs them passes the room; one without, an empty array).
 
     Returns
     -------
-    r_cam_to_icrs : ndarray, shape (P, 3, 3)
-    q_body_to_icrs_mid : ndarray, shape (N, 4)
-        Body attitudes at the mid instants.
-    q_cam_to_icrs_mid : ndarray, shape (N, 4)
-    star_index : ndarray of int64, shape (M,)
-        Catalog rows of the kept stars, increasing.
-    hip_kept : ndarray of int64, shape (M,)
-    vmag_kept, bv_kept : ndarray, shape (M,)
+    q_mid : ndarray, shape (2, N, 4)
+        ``q_mid[0]``: body-to-ICRS attitudes at the mid instants; ``q_mid[1]``: camera-to-ICRS ones.
+    rows : ndarray of int64, shape (2, M)
+        ``rows[0]``: catalog rows of the kept stars, increasing; ``rows[1]``: their HIP numbers.
+    mags : ndarray, shape (2, M)
+        ``mags[0]``: their vmag; ``mags[1]``: their B−V.
     xy_path : ndarray, shape (N, S, M, 2)
     visible : ndarray of bool, shape (N, M)
+
+    Notes
+    -----
+    The outputs of one kind share one array (each row a C-contiguous view for the caller's fields): every array
+    handed back to Python costs a boxing of its own.
     """
-    q_bw = interpolate_attitudes(t_samples, q_samples, path_times)
+    n_exp = start_steps.shape[0]
+    p = n_exp * n_path_samples
+    for i in range(n_exp):
+        start = t_first + start_steps[i]
+        for j in range(n_path_samples):
+            instants[i * n_path_samples + j] = start + path_steps[j]
+        instants[p + i] = instants[i * n_path_samples + n_path_samples // 2]
+    q_bw = interpolate_attitudes(t_samples, q_samples, instants[:p])
     r_cw, q_cam_mid, centre, drift = camera_frames(q_bw, q_cam_to_body, r_cam_to_body, n_path_samples)
     radius = half_diag_rad + drift + (margin_px + 2.0) / focal_length_px + 1e-6
     if math.pi < radius:  # min(radius, π) as Python's min has it
@@ -427,20 +448,21 @@ def scene_frame(t_samples, q_samples, path_times, q_cam_to_body, r_cam_to_body, 
     keep, xy_path, visible = project_scene(r_cw, vectors, idx, focal_length_mm, k1_per_mm2, pixel_size_mm, cx_px,
                                            cy_px, n_path_samples, n_cols, n_rows, margin_px, cos_rot, sin_rot)
     m = keep.shape[0]
-    star = np.empty(m, dtype=np.int64)
-    hip_k = np.empty(m, dtype=np.int64)
-    vmag_k = np.empty(m)
-    bv_k = np.empty(m)
+    rows = np.empty((2, m), dtype=np.int64)
+    mags = np.empty((2, m))
     for j in range(m):
         c = idx[keep[j]]
-        star[j] = c
-        hip_k[j] = hip[c]
-        vmag_k[j] = vmag[c]
-        bv_k[j] = bv[c]
+        rows[0, j] = c
+        rows[1, j] = hip[c]
+        mags[0, j] = vmag[c]
+        mags[1, j] = bv[c]
     s = n_path_samples
     n = q_bw.shape[0] // s
-    q_mid = np.empty((n, 4))
+    q_mid = np.empty((2, n, 4))
     for e in range(n):
         for a in range(4):
-            q_mid[e, a] = q_bw[e * s + s // 2, a]
-    return r_cw, q_mid, q_cam_mid, star, hip_k, vmag_k, bv_k, xy_path, visible
+            q_mid[0, e, a] = q_bw[e * s + s // 2, a]
+            q_mid[1, e, a] = q_cam_mid[e, a]
+    if r_cam_to_icrs.shape[0] == r_cw.shape[0]:
+        r_cam_to_icrs[:] = r_cw
+    return q_mid, rows, mags, xy_path, visible

@@ -807,14 +807,25 @@ def track_frame_from_state(q_state, omega, alpha, t_exp, t_ref, q_cam_to_body, h
     -------
     n_predicted, n_matched
         As :func:`track_frame`.
-    residual_rms_arcsec, n_stars, ok : ndarray, shapes (N,), (N,) int64, (N,) bool
-        Per instant, as :func:`track_frame`.
     nis : float
         As :func:`track_frame`.
-    n_off, kept, t_s, q, covariance_rad2, n
+    n_off : int
         The solved instants (``ok``) through :func:`~startracker.kernels.sensor.accept_instants`: instants off a smooth
-        motion, the instants kept, their times (s), attitudes (m, 4), scaled covariances (m, 3, 3, rad²) and stars,
-        fresh arrays.
+        motion.
+    values : ndarray, shape (2, N)
+        ``values[0]``: residual_rms_arcsec per instant, as :func:`track_frame`; ``values[1, :m]``: the m kept
+        instants' times, s (the rest uninitialised).
+    counts : ndarray of int64, shape (4, N)
+        ``counts[0]``: n_stars per instant, as :func:`track_frame`; ``counts[1, :m]``, ``counts[2, :m]``: the kept
+        instants (ascending) and their stars (the rest uninitialised); ``counts[3]``: 1 where :func:`track_frame`'s
+        ``ok`` (solved), else 0.
+    q, covariance_rad2 : ndarray, shapes (m, 4), (m, 3, 3)
+        The kept instants' attitudes and scaled covariances (rad²), fresh arrays.
+
+    Notes
+    -----
+    The outputs of one kind share one array (the caller's arrays its rows and row slices): every array handed back
+    to Python costs a boxing of its own.
     """
     n = t_exp.shape[0]
     dt = np.empty(n)
@@ -833,9 +844,19 @@ def track_frame_from_state(q_state, omega, alpha, t_exp, t_ref, q_cam_to_body, h
         q_pred, r_c2i, cand, catalog_vectors, focal_length_mm, k1_per_mm2, pixel_size_mm, ppx, ppy, cos_rot, sin_rot,
         width, height, obs, radius_px, brute, r_cam_to_body, sigma_rad, min_stars, outlier_threshold_rad, t_exp, t_ref,
         cov_theta, cov_omega, cov_alpha, obs_intensity, star_flux, flux_ratio_max)
-    accepted = accept_instants(true_indices(ok), t_exp, q_pred, q, cov, rms, n_used, instant_gate,
-                               residual_expected_arcsec, scale_by_residuals)
-    return (n_pred, n_matched, rms, n_used, ok, nis) + accepted
+    n_off, kept, t_s, q_k, cov_k, n_k = accept_instants(true_indices(ok), t_exp, q_pred, q, cov, rms, n_used,
+                                                        instant_gate, residual_expected_arcsec, scale_by_residuals)
+    values = np.empty((2, n))
+    counts = np.empty((4, n), dtype=np.int64)
+    for i in range(n):
+        values[0, i] = rms[i]
+        counts[0, i] = n_used[i]
+        counts[3, i] = 1 if ok[i] else 0
+    for k in range(kept.shape[0]):
+        values[1, k] = t_s[k]
+        counts[1, k] = kept[k]
+        counts[2, k] = n_k[k]
+    return n_pred, n_matched, nis, n_off, values, counts, q_k, cov_k
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

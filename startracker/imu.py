@@ -288,7 +288,8 @@ class _ThreeAxisSensor:
             if u.ndim not in (1, 2) or u.shape[-1] != 3:
                 raise ValueError(f"{self._input_name} must have shape (3,) or (K, 3), got {u.shape}")
         single = u.ndim == 1
-        u2 = u.reshape(-1, 3)
+        # a (K, 3) C-contiguous array (the unit's own interval rates) as it is: no view, no copy
+        u2 = u if not single and u.flags.c_contiguous else np.ascontiguousarray(u.reshape(-1, 3))
         k = u2.shape[0]
         if k == 0:
             return np.empty((0, 3))
@@ -297,7 +298,7 @@ class _ThreeAxisSensor:
         on = self._terms_on
         xi = rng.standard_normal((on[3], k, 3)) if on[3] else _NO_DRAWS
         y = kimu.sensor_samples(
-            np.ascontiguousarray(u2), self._sf, self._b_const, self._b_gm, self._b_rw, self._phi,
+            u2, self._sf, self._b_const, self._b_gm, self._b_rw, self._phi,
             self._gm_drive, xi[on[0]], self._rw_step, xi[on[1]], self._white_sigma, xi[on[2]], self._limit,
         )
         self._n_samples += k

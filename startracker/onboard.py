@@ -904,11 +904,11 @@ class StarTrackerUnit:
                        and times.flags.c_contiguous and quats.ndim == 2)
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
-            if own_history:  # one compiled call
-                omega_avg = rk.interval_rates_rows(times, quats)
+            if own_history:  # the rates and their samples in one compiled call
+                omega_meas = self.gyro.measure_history(times, quats, rng)  # (G, 3) float64, built here
             else:
                 omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]
-            omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
+                omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
             if faults:
                 omega_meas = faults.modify_gyro(omega_meas, times[1:], rng)
         else:

@@ -471,8 +471,10 @@ def judge_estimate(estimate: "Estimate", q_true_body_to_icrs) -> tuple[bool, boo
 def _sample_arrays(samples, times=None):
     """Times (n,), attitudes (n, 4) and covariances (n, 3, 3) of a non-empty list of samples (``times``: their
     ``t_s`` as a list, when the caller has it)."""
+    # the (4,) rows joined flat, then shaped: the same values as np.array of the rows, with less shape discovery
     return (np.array([s.t_s for s in samples] if times is None else times),
-            np.array([s.q_body_to_icrs for s in samples]), np.array([s.covariance_rad2 for s in samples]))
+            np.concatenate([s.q_body_to_icrs for s in samples]).reshape(-1, 4),
+            np.array([s.covariance_rad2 for s in samples]))
 
 
 def _wrong_samples(t_true, q_meas, cov, times_s, q_body_to_icrs) -> np.ndarray:
@@ -606,6 +608,7 @@ class StarTrackerUnit:
         self._jump_designs: dict[tuple, tuple] = {}
         self._jump_looks: dict[tuple, tuple] = {}  # (n2, n_prev, n_cur): both looks' designs (_monitor_gyro_jump)
         self._jump_delta = np.zeros(3)  # gyro_jump_looks' output row, reused
+        self._rate_noise_out = np.empty((0, 3))  # saturated_rate_noise's output rows, reused (_rate_noise)
         self._jump_sigma2 = self._jump_sigma_rad_s**2
         g = int(round(config.frame_period_s * config.gyro_rate_hz))
         self._allowance_span = g
@@ -859,12 +862,15 @@ class StarTrackerUnit:
         the previous reading bit for bit (a clip below the range: noise never repeats a float64 value; rates a
         user hands in may well repeat). Its true rate is unknown beyond the reading:
         :data:`SATURATED_RATE_SIGMA_RAD_S`, squared, enters the attitude process noise."""
-        out = np.empty((len(omega_meas), 3))
+        out = self._rate_noise_out
+        if out.shape[0] != len(omega_meas):
+            out = self._rate_noise_out = np.empty((len(omega_meas), 3))
         limit, noisy = self._saturation_args
         last = filter_kernels.saturated_rate_noise(
             np.ascontiguousarray(omega_meas, dtype=np.float64), self._omega_gyro, limit, own_gyro and noisy,
             _SATURATED_RATE_VAR_RAD2_S2, out)
-        return (None, -1) if last < 0 else (out, last)
+        # the kernel's output is a scratch reused span after span: a saturated span's is handed on as a copy
+        return (None, -1) if last < 0 else (out.copy(), last)
 
     # ------------------------------------------------------------------ one span of truth
     def observe(self, times_s, q_body_to_icrs, rng: np.random.Generator, omega_gyro=None) -> None:
@@ -1304,7 +1310,11 @@ class StarTrackerUnit:
             # Only a prediction too uncertain for the frame step's own spacing test (one star's spots 1.5
             # shift_k_sigma prediction σ apart, or the frame is refused) lowers it.
             w = np.zeros(3) if omega_hint is None else omega_hint
-            rate_deg_s = math.degrees(math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])))
+            if type(w) is np.ndarray and w.dtype == np.float64:  # Python floats: numpy's products and sum, unboxed
+                w0, w1, w2 = w.tolist()
+                rate_deg_s = math.degrees(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2))
+            else:
+                rate_deg_s = math.degrees(math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])))
             n = min(max(1 + math.floor(rate_deg_s / exp.rate_per_exposure_deg_s + 0.5), 1), exp.max_exposures)
             n = max(1, min(n, tracker.separable_n_exposures(1.5 * tracker.shift_k_sigma)))
         elif exp.n_exposures == "adaptive":
@@ -1373,7 +1383,7 @@ class StarTrackerUnit:
             self._stats = None  # the frame's figures, built when asked for (last_stats)
             return []
         sun = None
-        blinded = set()
+        blinded = ()  # no head blinded without faults
         if faults:
             t_s, q_s = truth
             # the kernel layer on the env's checked float64 history (the same floats as the checked API, ~10x cheaper)

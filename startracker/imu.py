@@ -311,9 +311,12 @@ class _ThreeAxisSensor:
             return np.empty((0, 3))
         on = self._terms_on
         xi = rng.standard_normal((on[3], k, 3)) if on[3] else _NO_DRAWS
+        # with at most one term on, every term's index is 0: one view of the draws for the three
+        x_gm = xi[on[0]]
+        x_rw, x_white = (x_gm, x_gm) if on[3] <= 1 else (xi[on[1]], xi[on[2]])
         y = kimu.gyro_samples_of_history(
             t, q, self._sf, self._b_const, self._b_gm, self._b_rw, self._phi,
-            self._gm_drive, xi[on[0]], self._rw_step, xi[on[1]], self._white_sigma, xi[on[2]], self._limit,
+            self._gm_drive, x_gm, self._rw_step, x_rw, self._white_sigma, x_white, self._limit,
         )
         self._n_samples += k
         return y

@@ -1124,7 +1124,11 @@ class StarTrackerUnit:
             accepted = np.zeros(len(tm), dtype=bool)
             accepted[:first] = True  # the first fix started the filter
             accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
-        last_accepted, n_wrong, n_confident = filter_kernels.delivery_counts(accepted, wrong)
+        fusion = self.fusion
+        # the delivery's tallies and, when it has innovations, the monitor's window: one compiled call
+        last_accepted, n_wrong, n_confident, windowed, window = filter_kernels.delivery_tallies(
+            accepted, wrong, fusion.last_nis, fusion.last_innovation_rad, fusion.last_innovation_cov_rad2,
+            *self._monitor, self._monitor_slot)
         any_accepted = last_accepted >= 0
         if any_accepted:
             self._t_accepted = max(self._t_accepted, float(tm[last_accepted]))
@@ -1134,7 +1138,8 @@ class StarTrackerUnit:
         self._n_confidently_wrong += n_confident
         stats["n_wrong_samples"] += n_wrong
         stats["n_confidently_wrong_samples"] += n_confident
-        self._monitor_innovations()
+        if windowed:
+            self._monitor_innovations(window)
         # Persistent innovation: the tracker keeps reporting attitudes the filter gates out (a gyro bias jump the
         # filter does not believe). After three such deliveries in a row, restart from the tracker's last sample,
         # keep the bias estimate, and open its covariance so the filter can learn the new bias.
@@ -1153,7 +1158,7 @@ class StarTrackerUnit:
                 if self._rate_matters():
                     self._unconfirmed = CONFIRM_DELIVERIES
 
-    def _monitor_innovations(self) -> None:
+    def _monitor_innovations(self, window: tuple) -> None:
         """Innovation tests over the last deliveries: on failure, void the estimate's validity and open the bias
         covariance so that the filter relearns the bias; valid again once :data:`MONITOR_RECOVERY_DELIVERIES`
         deliveries since have passed.
@@ -1165,14 +1170,14 @@ class StarTrackerUnit:
         samples' own NIS (:data:`MONITOR_SAMPLE_NIS`); and the timing test of each delivery before it was fused
         (:meth:`_timing_statistic`), summed against χ²(n): a frame whose timestamp is off moves all its samples along
         ω, a frame's worth of shared error the filter would otherwise average as if independent (a single delivery
-        beyond χ²(1) is refused before fusion, in :meth:`_deliver`)."""
+        beyond χ²(1) is refused before fusion, in :meth:`_deliver`).
+
+        ``window``: the statistics of the window with the newest delivery's innovations in it (their ring slot
+        written), as :func:`startracker.kernels.filter.delivery_tallies` returns them for a delivery with innovations
+        (the only ones the monitor looks at)."""
         fusion = self.fusion
-        if len(fusion.last_innovation_rad) == 0:
-            return
         ring = self._monitor
-        total, n, mean_chi2, delivery_chi2, max_nis, n_nis = filter_kernels.innovation_window(
-            fusion.last_nis, fusion.last_innovation_rad, fusion.last_innovation_cov_rad2, *ring,
-            self._monitor_slot)
+        total, n, mean_chi2, delivery_chi2, max_nis, n_nis = window
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
         n_timing = sum(self._timing_n)  # of 0.0 and 1.0: exact in any order

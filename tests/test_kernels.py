@@ -601,6 +601,37 @@ def test_delivery_kernels_equal_their_numpy_formulas(seed):
     assert fk.delivery_rows(np.ones((3, 4)), t_nan)[1] is True
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_delivery_tallies_count_by_numpy_and_equal_the_window(seed):
+    """delivery_tallies: the counts numpy's flatnonzero / count_nonzero give, and innovation_window's statistics and
+    ring bit for bit (on a copy of the ring); a delivery without innovations leaves the ring as it was."""
+    from startracker.kernels import filter as fk
+
+    rng = np.random.default_rng(seed)
+    k = 5
+    for m in (1, 4, 9):
+        accepted = rng.random(m) < 0.6
+        wrong = rng.random(m) < 0.4
+        a = rng.normal(size=(m, 3, 3)) * 1e-5
+        s = a @ a.transpose(0, 2, 1) + np.eye(3) * 1e-11
+        z = rng.normal(size=(m, 3)) * 2e-5
+        nis = np.array([zi @ np.linalg.solve(si, zi) for zi, si in zip(z, s)])
+        ring = (rng.random(k), rng.integers(0, 3, k).astype(float), rng.normal(size=(k, 3)) * 1e-5,
+                np.broadcast_to(np.eye(3) * 1e-9, (k, 3, 3)).copy())
+        ring_ref = tuple(r.copy() for r in ring)
+        slot = int(rng.integers(k))
+        last, n_wrong, n_confident, windowed, window = fk.delivery_tallies(accepted, wrong, nis, z, s, *ring, slot)
+        assert last == (np.flatnonzero(accepted)[-1] if accepted.any() else -1)
+        assert n_wrong == np.count_nonzero(wrong) and n_confident == np.count_nonzero(wrong & accepted)
+        assert windowed is True
+        assert window == fk.innovation_window(nis, z, s, *ring_ref, slot)
+        assert all(np.array_equal(r, r_ref) for r, r_ref in zip(ring, ring_ref))
+        before = tuple(r.copy() for r in ring)
+        out = fk.delivery_tallies(accepted, wrong, nis, np.zeros((0, 3)), np.zeros((0, 3, 3)), *ring, slot)
+        assert out[:4] == (last, n_wrong, n_confident, False)
+        assert all(np.array_equal(r, b) for r, b in zip(ring, before))
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_gyro_jump_looks_equal_two_statistics_on_the_concatenated_windows(seed):
     """The jump monitor's two looks in one call: the first look is gyro_jump_statistic on the previous and this

@@ -288,7 +288,8 @@ class _ThreeAxisSensor:
             if u.ndim not in (1, 2) or u.shape[-1] != 3:
                 raise ValueError(f"{self._input_name} must have shape (3,) or (K, 3), got {u.shape}")
         single = u.ndim == 1
-        u2 = u.reshape(-1, 3)
+        # a (K, 3) C-contiguous array (the unit's own interval rates) as it is: no view, no copy
+        u2 = u if not single and u.flags.c_contiguous else np.ascontiguousarray(u.reshape(-1, 3))
         k = u2.shape[0]
         if k == 0:
             return np.empty((0, 3))
@@ -297,11 +298,28 @@ class _ThreeAxisSensor:
         on = self._terms_on
         xi = rng.standard_normal((on[3], k, 3)) if on[3] else _NO_DRAWS
         y = kimu.sensor_samples(
-            np.ascontiguousarray(u2), self._sf, self._b_const, self._b_gm, self._b_rw, self._phi,
+            u2, self._sf, self._b_const, self._b_gm, self._b_rw, self._phi,
             self._gm_drive, xi[on[0]], self._rw_step, xi[on[1]], self._white_sigma, xi[on[2]], self._limit,
         )
         self._n_samples += k
         return y[0] if single else y
+
+    def _measure_history(self, t, q, rng) -> np.ndarray:
+        # the mean rate of each interval and its samples in one compiled call; the draws as in _measure
+        k = t.shape[0] - 1
+        if k <= 0:
+            return np.empty((0, 3))
+        on = self._terms_on
+        xi = rng.standard_normal((on[3], k, 3)) if on[3] else _NO_DRAWS
+        # with at most one term on, every term's index is 0: one view of the draws for the three
+        x_gm = xi[on[0]]
+        x_rw, x_white = (x_gm, x_gm) if on[3] <= 1 else (xi[on[1]], xi[on[2]])
+        y = kimu.gyro_samples_of_history(
+            t, q, self._sf, self._b_const, self._b_gm, self._b_rw, self._phi,
+            self._gm_drive, x_gm, self._rw_step, x_rw, self._white_sigma, x_white, self._limit,
+        )
+        self._n_samples += k
+        return y
 
 
 class Gyro(_ThreeAxisSensor):
@@ -361,6 +379,26 @@ class Gyro(_ThreeAxisSensor):
             Measured rates, rad/s, within ``±max_rate_rad_s``.
         """
         return self._measure(omega_true_body, rng, validate)
+
+    def measure_history(self, times_s: np.ndarray, q_body_to_icrs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Samples over each interval of a true attitude history: :meth:`measure` of its mean body rates (the
+        rotation vector of ``conj(q[k]) ⊗ q[k + 1]`` over ``t[k + 1] - t[k]``), in one compiled call, unchecked.
+
+        Parameters
+        ----------
+        times_s : ndarray, shape (K + 1,)
+            Instants, s, increasing (float64, C-contiguous).
+        q_body_to_icrs : ndarray, shape (K + 1, 4)
+            True attitudes at ``times_s`` (non-zero, float64, C-contiguous).
+        rng : numpy.random.Generator
+            Draws as :meth:`measure` of the K rates does (the same stream).
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Measured rates over ``(times_s[k], times_s[k + 1]]``, rad/s, within ``±max_rate_rad_s``.
+        """
+        return self._measure_history(times_s, q_body_to_icrs, rng)
 
 
 class Accelerometer(_ThreeAxisSensor):

@@ -468,9 +468,12 @@ def judge_estimate(estimate: "Estimate", q_true_body_to_icrs) -> tuple[bool, boo
     return wrong, wrong and bool(estimate.valid)
 
 
-def _sample_arrays(samples):
-    """Times (n,), attitudes (n, 4) and covariances (n, 3, 3) of a non-empty list of samples."""
-    return (np.array([s.t_s for s in samples]), np.array([s.q_body_to_icrs for s in samples]),
+def _sample_arrays(samples, times=None):
+    """Times (n,), attitudes (n, 4) and covariances (n, 3, 3) of a non-empty list of samples (``times``: their
+    ``t_s`` as a list, when the caller has it)."""
+    # the (4,) rows joined flat, then shaped: the same values as np.array of the rows, with less shape discovery
+    return (np.array([s.t_s for s in samples] if times is None else times),
+            np.concatenate([s.q_body_to_icrs for s in samples]).reshape(-1, 4),
             np.array([s.covariance_rad2 for s in samples]))
 
 
@@ -481,6 +484,14 @@ def _wrong_samples(t_true, q_meas, cov, times_s, q_body_to_icrs) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=np.float64)
     return sensor_kernels.wrong_sample_flags(rows(t_true), rows(q_meas), rows(cov), rows(times_s),
                                              rows(q_body_to_icrs).reshape(-1, 4), VERDICT_CHI2_3)
+
+
+def _with_mid_times(plan: ExposurePlan) -> tuple:
+    """``(plan, start_offset_s, steps, exposure_s / 2)`` (:meth:`StarTrackerUnit._plan_for`); ``steps`` is
+    ``plan.exposure_start_times`` at ``-start_offset_s`` (``(-o + o) + steps`` is ``steps`` exactly)."""
+    steps = plan.exposure_start_times(-plan.start_offset_s)
+    steps.setflags(write=False)
+    return plan, plan.start_offset_s, steps, 0.5 * plan.exposure_s
 
 
 def _empty_stats(n_heads: int = 1, *, matching_latency_ms=0.0, matching_latency_ms_per_head=None,
@@ -590,11 +601,14 @@ class StarTrackerUnit:
         self.gyro_period_s = 1.0 / config.gyro_rate_hz
         # the saturation monitor's per-configuration arguments: the gyro's range, whether its readings are noisy
         self._saturation_args = (float(self.gyro_spec.max_rate_rad_s), self.gyro_spec.arw_rad_sqrt_s > 0.0)
-        self._plans: dict[tuple, ExposurePlan] = {}
+        self._plans: dict[tuple, tuple] = {}  # _plan_for's (plan, start offset, steps, half exposure) per key
         # gyro jump monitor: the noise of one reading (the white noise of the sample average, plus the model floor)
         self._jump_sigma_rad_s = math.hypot(self.gyro_spec.arw_rad_sqrt_s * math.sqrt(config.gyro_rate_hz),
                                             GYRO_JUMP_MODEL_SIGMA_RAD_S)
         self._jump_designs: dict[tuple, tuple] = {}
+        self._jump_looks: dict[tuple, tuple] = {}  # (n2, n_prev, n_cur): both looks' designs (_monitor_gyro_jump)
+        self._jump_delta = np.zeros(3)  # gyro_jump_looks' output row, reused
+        self._rate_noise_out = np.empty((0, 3))  # saturated_rate_noise's output rows, reused (_rate_noise)
         self._jump_sigma2 = self._jump_sigma_rad_s**2
         g = int(round(config.frame_period_s * config.gyro_rate_hz))
         self._allowance_span = g
@@ -760,13 +774,14 @@ class StarTrackerUnit:
         if saturated or prev_saturated or (len(prev) == 0 and len(omega_meas) < 3):
             return omega_meas  # a clipped reading is the saturation monitor's; too few readings for a line and a step
         n_prev, n_cur = len(prev), len(omega_meas)
-        m, den, first = self._jump_design(n_prev, n_cur)
         # the second look (this span's readings after the previous span's) when the first finds nothing: one call
-        if GYRO_JUMP_SECOND_LOOK and len(prev2) >= 2 and n_prev >= 2 and not prev2_saturated:
-            m2, den2, first2 = self._jump_design(len(prev2), n_prev, n_cur)
-        else:
-            m2, den2, first2 = _NO_JUMP_DESIGN
-        delta = np.zeros(3)
+        n2 = len(prev2) if GYRO_JUMP_SECOND_LOOK and len(prev2) >= 2 and n_prev >= 2 and not prev2_saturated else 0
+        looks = self._jump_looks.get((n2, n_prev, n_cur))
+        if looks is None:  # both looks' designs, under one key: one lookup a span
+            looks = self._jump_looks[(n2, n_prev, n_cur)] = (
+                self._jump_design(n_prev, n_cur) + (self._jump_design(n2, n_prev, n_cur) if n2 else _NO_JUMP_DESIGN))
+        m, den, first, m2, den2, first2 = looks
+        delta = self._jump_delta  # scratch: the kernel writes it before a look finds a step
         sigma2 = self._jump_sigma2
         look, j = filter_kernels.gyro_jump_looks(
             np.ascontiguousarray(prev2, dtype=np.float64), np.ascontiguousarray(prev, dtype=np.float64),
@@ -774,6 +789,7 @@ class StarTrackerUnit:
             GYRO_JUMP_CHI2_3, delta)
         if look == 0:
             return omega_meas
+        delta = delta.copy()  # the step's own array (kept in the correction)
         if look == 2:
             return self._second_look(prev2, prev, prev_times, omega_meas, j, delta, den2)
         g = j - n_prev
@@ -846,12 +862,15 @@ class StarTrackerUnit:
         the previous reading bit for bit (a clip below the range: noise never repeats a float64 value; rates a
         user hands in may well repeat). Its true rate is unknown beyond the reading:
         :data:`SATURATED_RATE_SIGMA_RAD_S`, squared, enters the attitude process noise."""
-        out = np.empty((len(omega_meas), 3))
+        out = self._rate_noise_out
+        if out.shape[0] != len(omega_meas):
+            out = self._rate_noise_out = np.empty((len(omega_meas), 3))
         limit, noisy = self._saturation_args
         last = filter_kernels.saturated_rate_noise(
             np.ascontiguousarray(omega_meas, dtype=np.float64), self._omega_gyro, limit, own_gyro and noisy,
             _SATURATED_RATE_VAR_RAD2_S2, out)
-        return (None, -1) if last < 0 else (out, last)
+        # the kernel's output is a scratch reused span after span: a saturated span's is handed on as a copy
+        return (None, -1) if last < 0 else (out.copy(), last)
 
     # ------------------------------------------------------------------ one span of truth
     def observe(self, times_s, q_body_to_icrs, rng: np.random.Generator, omega_gyro=None) -> None:
@@ -891,11 +910,11 @@ class StarTrackerUnit:
                        and times.flags.c_contiguous and quats.ndim == 2)
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
-            if own_history:  # one compiled call
-                omega_avg = rk.interval_rates_rows(times, quats)
+            if own_history:  # the rates and their samples in one compiled call
+                omega_meas = self.gyro.measure_history(times, quats, rng)  # (G, 3) float64, built here
             else:
                 omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]
-            omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
+                omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
             if faults:
                 omega_meas = faults.modify_gyro(omega_meas, times[1:], rng)
         else:
@@ -944,23 +963,43 @@ class StarTrackerUnit:
             bd_id += f_id
         # distinct attitude instants: heads exposed at the same instant add samples, not updates (round half to
         # even, as np.round)
-        n_instants = len({round(smp.t_s * 1e6) for smp in samples})
-        means = {}  # the frames' mean figures (none without frames: _empty_stats' zeros)
+        t_list = [smp.t_s for smp in samples]
+        n_instants = len({round(t * 1e6) for t in t_list})
+        update_rate_hz = n_instants / duration_s
+        update_rate_hz_per_head = [v / duration_s for v in per_head_n]
+        # the frames' mean figures (zeros without frames); _empty_stats' keys in its order, in one literal
         if n_frames:
-            means = dict(matching_latency_ms=lat_sum / n_frames,
-                         matching_latency_ms_per_head=[v / n_frames for v in per_head_lat],
-                         matching_wall_clock_ms=wall_sum / n_frames,
-                         matching_wall_clock_ms_per_head=[v / n_frames for v in per_head_wall],
-                         wall_clock_breakdown_ms=dict(predict_match=bd_pm / n_frames,
-                                                      group_solve_test=bd_gst / n_frames, identify=bd_id / n_frames))
-        stats = _empty_stats(n_heads, **means, n_stars=n_stars, exposures_per_frame=exposures_per_frame,
-                             n_attitude_samples=len(samples), update_rate_hz=n_instants / duration_s,
-                             update_rate_hz_per_head=[v / duration_s for v in per_head_n],
-                             lost_lock_events=self._lost_events,
-                             faults_active=faults.active_kinds(t0, times[-1]) if faults else [])
+            lat_mean, wall_mean = lat_sum / n_frames, wall_sum / n_frames
+            lat_per_head = [v / n_frames for v in per_head_lat]
+            wall_per_head = [v / n_frames for v in per_head_wall]
+            breakdown = dict(predict_match=bd_pm / n_frames, group_solve_test=bd_gst / n_frames,
+                             identify=bd_id / n_frames)
+        else:
+            lat_mean = wall_mean = 0.0
+            lat_per_head, wall_per_head = [0.0] * n_heads, [0.0] * n_heads
+            breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
+        stats = {
+            "update_rate_hz": update_rate_hz,
+            "update_rate_hz_per_head": update_rate_hz_per_head,
+            "matching_latency_ms": lat_mean,
+            "matching_latency_ms_per_head": lat_per_head,
+            "n_stars": n_stars,
+            "exposures_per_frame": exposures_per_frame,
+            "n_attitude_samples": len(samples),
+            "lost_lock_events": self._lost_events,
+            "matching_wall_clock_ms": wall_mean,
+            "matching_wall_clock_ms_per_head": wall_per_head,
+            "wall_clock_breakdown_ms": breakdown,
+            "n_wrong_samples": 0,
+            "n_confidently_wrong_samples": 0,
+            "estimate_wrong": False,
+            "estimate_confidently_wrong": False,
+            "filter_restarts": 0,
+            "faults_active": faults.active_kinds(t0, times[-1]) if faults else [],
+        }
         self.last_samples = samples
         if samples:  # judged against this span's truth now, counted when the filter has seen them
-            t_arr, q_arr, c_arr = _sample_arrays(samples)
+            t_arr, q_arr, c_arr = _sample_arrays(samples, t_list)
             t_true = t_arr - np.array(offsets) if offsets is not None else t_arr
             if own_history:  # the sample arrays are fresh float64 ones (_sample_arrays): no copies
                 wrong = sensor_kernels.wrong_sample_flags(t_true, q_arr, c_arr, times, quats, VERDICT_CHI2_3)
@@ -1085,7 +1124,11 @@ class StarTrackerUnit:
             accepted = np.zeros(len(tm), dtype=bool)
             accepted[:first] = True  # the first fix started the filter
             accepted[first:] = self.fusion.fuse(qm[first:], tm[first:], cm[first:])
-        last_accepted, n_wrong, n_confident = filter_kernels.delivery_counts(accepted, wrong)
+        fusion = self.fusion
+        # the delivery's tallies and, when it has innovations, the monitor's window: one compiled call
+        last_accepted, n_wrong, n_confident, windowed, window = filter_kernels.delivery_tallies(
+            accepted, wrong, fusion.last_nis, fusion.last_innovation_rad, fusion.last_innovation_cov_rad2,
+            *self._monitor, self._monitor_slot)
         any_accepted = last_accepted >= 0
         if any_accepted:
             self._t_accepted = max(self._t_accepted, float(tm[last_accepted]))
@@ -1095,7 +1138,8 @@ class StarTrackerUnit:
         self._n_confidently_wrong += n_confident
         stats["n_wrong_samples"] += n_wrong
         stats["n_confidently_wrong_samples"] += n_confident
-        self._monitor_innovations()
+        if windowed:
+            self._monitor_innovations(window)
         # Persistent innovation: the tracker keeps reporting attitudes the filter gates out (a gyro bias jump the
         # filter does not believe). After three such deliveries in a row, restart from the tracker's last sample,
         # keep the bias estimate, and open its covariance so the filter can learn the new bias.
@@ -1114,7 +1158,7 @@ class StarTrackerUnit:
                 if self._rate_matters():
                     self._unconfirmed = CONFIRM_DELIVERIES
 
-    def _monitor_innovations(self) -> None:
+    def _monitor_innovations(self, window: tuple) -> None:
         """Innovation tests over the last deliveries: on failure, void the estimate's validity and open the bias
         covariance so that the filter relearns the bias; valid again once :data:`MONITOR_RECOVERY_DELIVERIES`
         deliveries since have passed.
@@ -1126,14 +1170,14 @@ class StarTrackerUnit:
         samples' own NIS (:data:`MONITOR_SAMPLE_NIS`); and the timing test of each delivery before it was fused
         (:meth:`_timing_statistic`), summed against χ²(n): a frame whose timestamp is off moves all its samples along
         ω, a frame's worth of shared error the filter would otherwise average as if independent (a single delivery
-        beyond χ²(1) is refused before fusion, in :meth:`_deliver`)."""
+        beyond χ²(1) is refused before fusion, in :meth:`_deliver`).
+
+        ``window``: the statistics of the window with the newest delivery's innovations in it (their ring slot
+        written), as :func:`startracker.kernels.filter.delivery_tallies` returns them for a delivery with innovations
+        (the only ones the monitor looks at)."""
         fusion = self.fusion
-        if len(fusion.last_innovation_rad) == 0:
-            return
         ring = self._monitor
-        total, n, mean_chi2, delivery_chi2, max_nis, n_nis = filter_kernels.innovation_window(
-            fusion.last_nis, fusion.last_innovation_rad, fusion.last_innovation_cov_rad2, *ring,
-            self._monitor_slot)
+        total, n, mean_chi2, delivery_chi2, max_nis, n_nis = window
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
         n_timing = sum(self._timing_n)  # of 0.0 and 1.0: exact in any order
@@ -1248,8 +1292,11 @@ class StarTrackerUnit:
         """Time from each loss of lock to the next lock, s."""
         return list(self._reacquisition_s)
 
-    def _plan_for(self, k: int, omega_hint) -> ExposurePlan:
-        """Head k's exposure plan for the next frame (its spec's exposure, its tracker's request)."""
+    def _plan_for(self, k: int, omega_hint) -> tuple:
+        """Head k's exposure plan for the next frame (its spec's exposure, its tracker's request), with what its
+        exposure mid-times take: ``(plan, start_offset_s, steps (N,), exposure_s / 2)``, ``steps`` its exposures'
+        start times after the first, s (read-only), so that ``((t + start_offset_s) + steps) + exposure_s / 2`` is
+        :meth:`ExposurePlan.exposure_mid_times` of a float ``t``, operation for operation."""
         exp = self.config.heads[k].exposure
         tracker = self.trackers[k]
         requested = tracker.requested_n_exposures  # a computed property: evaluate it once
@@ -1258,9 +1305,9 @@ class StarTrackerUnit:
             key = (1, exp.single_exposure_s, True)
             plan = self._plans.get(key)
             if plan is None:
-                plan = self._plans[key] = ExposurePlan(
+                plan = self._plans[key] = _with_mid_times(ExposurePlan(
                     n_exposures=1, exposure_s=exp.single_exposure_s, frame_period_s=exp.frame_period_s,
-                    start_offset_s=0.5 * (exp.frame_period_s - exp.single_exposure_s))
+                    start_offset_s=0.5 * (exp.frame_period_s - exp.single_exposure_s)))
             return plan
         if exp.n_exposures == "adaptive" and exp.n_rule == "paper000":
             # paper 000's rule: one more exposure per rate_per_exposure_deg_s of body rate (1 -> 21 over 0 -> 20°/s);
@@ -1268,7 +1315,11 @@ class StarTrackerUnit:
             # Only a prediction too uncertain for the frame step's own spacing test (one star's spots 1.5
             # shift_k_sigma prediction σ apart, or the frame is refused) lowers it.
             w = np.zeros(3) if omega_hint is None else omega_hint
-            rate_deg_s = math.degrees(math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])))
+            if type(w) is np.ndarray and w.dtype == np.float64:  # Python floats: numpy's products and sum, unboxed
+                w0, w1, w2 = w.tolist()
+                rate_deg_s = math.degrees(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2))
+            else:
+                rate_deg_s = math.degrees(math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])))
             n = min(max(1 + math.floor(rate_deg_s / exp.rate_per_exposure_deg_s + 0.5), 1), exp.max_exposures)
             n = max(1, min(n, tracker.separable_n_exposures(1.5 * tracker.shift_k_sigma)))
         elif exp.n_exposures == "adaptive":
@@ -1284,8 +1335,8 @@ class StarTrackerUnit:
         key = (n, exp.exposure_s, False)
         plan = self._plans.get(key)
         if plan is None:  # plans are frozen: each N is built and validated once
-            plan = self._plans[key] = ExposurePlan(n_exposures=n, exposure_s=exp.exposure_s,
-                                                   frame_period_s=exp.frame_period_s)
+            plan = self._plans[key] = _with_mid_times(ExposurePlan(n_exposures=n, exposure_s=exp.exposure_s,
+                                                                   frame_period_s=exp.frame_period_s))
         return plan
 
     def _inertial_prior(self, tracker, t_frame: float):
@@ -1337,7 +1388,7 @@ class StarTrackerUnit:
             self._stats = None  # the frame's figures, built when asked for (last_stats)
             return []
         sun = None
-        blinded = set()
+        blinded = ()  # no head blinded without faults
         if faults:
             t_s, q_s = truth
             # the kernel layer on the env's checked float64 history (the same floats as the checked API, ~10x cheaper)
@@ -1352,7 +1403,7 @@ class StarTrackerUnit:
         head_wall = [0.0] * n_heads
         bd_pm = bd_gst = bd_id = 0.0
         for k, (head, tracker) in enumerate(zip(self.heads, self.trackers)):
-            plan = self._plan_for(k, omega_hint)
+            plan, start_offset_s, steps, half_exposure_s = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
             det, scene = head.detections(self.catalogs[k], truth, plan, t_frame, rng, cfg.fidelity, bodies)
             if len(det) and sensor_kernels.any_nonpositive(det.intensity):
@@ -1361,7 +1412,11 @@ class StarTrackerUnit:
                 det = faults.modify_detections(det, t_mid, rng, head.camera.resolution)
             if k in blinded:
                 det = det.subset(np.zeros(0, dtype=np.int64))
-            t_exp = plan.exposure_mid_times(t_frame)  # a fresh array
+            if type(t_frame) is float and math.isfinite(t_frame):  # exposure_mid_times' own steps, without its calls
+                t_exp = (t_frame + start_offset_s) + steps  # a fresh array
+                t_exp += half_exposure_s
+            else:
+                t_exp = plan.exposure_mid_times(t_frame)
             if self.last_time_error_s != 0.0:
                 t_exp = t_exp + self.last_time_error_s
             prior = self._inertial_prior(tracker, t_frame) if self.head_modes[k] != "track" else None

@@ -485,7 +485,8 @@ class StarTracker:
         horizon = max(period, self._last_exp_centre + 1.5 * period - st.t_s)
         # the motion state holds (3, 3) float64 covariances: the kernel of prediction_sigma_px directly
         sigma = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, st.cov_omega,
-                                                  self._cov_alpha_total(st), float(horizon), self._f_px, self._rho_max_px)
+                                                  st.cov_alpha + self._var_proc,  # _cov_alpha_total, inline
+                                                  float(horizon), self._f_px, self._rho_max_px)
         wx, wy, _ = np.dot(self._r_body_to_cam, w).tolist()  # BLAS gemv like @, without the matmul ufunc machinery
         travel_px = math.hypot(wx, wy) * period * self._f_px
         value = (n_rate, sigma, travel_px)

@@ -473,6 +473,32 @@ def test_interval_rates_kernel_equals_scipy_over_each_interval(seed):
 
 
 @pytest.mark.parametrize("seed", range(3))
+def test_gyro_measure_history_against_scipy_rates_and_measure(seed):
+    """Gyro.measure_history (kernels.imu.gyro_samples_of_history): an ideal gyro reads scipy's
+    ``(R_k⁻¹ R_k+1).as_rotvec() / Δt`` of each interval; a noisy one, bit for bit, what ``measure`` of the interval
+    rates reads from the same generator state (same samples, same bias states after, same draws taken)."""
+    from startracker.imu import Gyro, gyro_preset
+
+    rng = np.random.default_rng(seed)
+    for n in (2, 3, 11, 31):
+        t = np.cumsum(rng.uniform(1e-3, 2e-2, n)) + rng.uniform(-1, 100)
+        w = rng.normal(size=3) * 10 ** rng.uniform(-6, 0.5)
+        q = rot.quat_integrate(rot.quat_random(rng), w, t - t[0]) * rng.choice([1.0, -1.0], size=(n, 1))
+        r = Rotation.from_quat(q[:, [1, 2, 3, 0]])
+        ref = (r[:-1].inv() * r[1:]).as_rotvec() / np.diff(t)[:, None]
+        ideal = Gyro(gyro_preset("ideal"), np.random.default_rng(0))
+        np.testing.assert_allclose(ideal.measure_history(t, q, np.random.default_rng(1)), ref, rtol=1e-8, atol=1e-13)
+        for grade in ("tactical", "industrial", "paper001-cond2"):
+            g_a, g_b = Gyro(gyro_preset(grade), np.random.default_rng(5)), Gyro(gyro_preset(grade), np.random.default_rng(5))
+            r_a, r_b = np.random.default_rng(seed + 10), np.random.default_rng(seed + 10)
+            y_a = g_a.measure_history(t, q, r_a)
+            y_b = g_b.measure(rk.interval_rates_rows(t, q), r_b)
+            assert y_a.shape == (n - 1, 3) and np.array_equal(y_a, y_b)
+            assert np.array_equal(g_a.bias_rad_s, g_b.bias_rad_s)
+            assert r_a.random() == r_b.random()  # the same number of draws taken
+
+
+@pytest.mark.parametrize("seed", range(3))
 def test_wrong_sample_flags_against_scipy_slerp_and_solve(seed):
     """The sample verdict's kernel: for samples inside the truth history, wrong exactly when the error (scipy's
     ``(R_meas⁻¹ R_true).as_rotvec()`` against scipy's Slerp of the truth) fails χ²(3) on the sample's own covariance
@@ -573,6 +599,37 @@ def test_delivery_kernels_equal_their_numpy_formulas(seed):
     t_nan = np.array([0.0, np.nan, 0.1])
     assert not (t_nan[1:] < t_nan[:-1]).any()
     assert fk.delivery_rows(np.ones((3, 4)), t_nan)[1] is True
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_delivery_tallies_count_by_numpy_and_equal_the_window(seed):
+    """delivery_tallies: the counts numpy's flatnonzero / count_nonzero give, and innovation_window's statistics and
+    ring bit for bit (on a copy of the ring); a delivery without innovations leaves the ring as it was."""
+    from startracker.kernels import filter as fk
+
+    rng = np.random.default_rng(seed)
+    k = 5
+    for m in (1, 4, 9):
+        accepted = rng.random(m) < 0.6
+        wrong = rng.random(m) < 0.4
+        a = rng.normal(size=(m, 3, 3)) * 1e-5
+        s = a @ a.transpose(0, 2, 1) + np.eye(3) * 1e-11
+        z = rng.normal(size=(m, 3)) * 2e-5
+        nis = np.array([zi @ np.linalg.solve(si, zi) for zi, si in zip(z, s)])
+        ring = (rng.random(k), rng.integers(0, 3, k).astype(float), rng.normal(size=(k, 3)) * 1e-5,
+                np.broadcast_to(np.eye(3) * 1e-9, (k, 3, 3)).copy())
+        ring_ref = tuple(r.copy() for r in ring)
+        slot = int(rng.integers(k))
+        last, n_wrong, n_confident, windowed, window = fk.delivery_tallies(accepted, wrong, nis, z, s, *ring, slot)
+        assert last == (np.flatnonzero(accepted)[-1] if accepted.any() else -1)
+        assert n_wrong == np.count_nonzero(wrong) and n_confident == np.count_nonzero(wrong & accepted)
+        assert windowed is True
+        assert window == fk.innovation_window(nis, z, s, *ring_ref, slot)
+        assert all(np.array_equal(r, r_ref) for r, r_ref in zip(ring, ring_ref))
+        before = tuple(r.copy() for r in ring)
+        out = fk.delivery_tallies(accepted, wrong, nis, np.zeros((0, 3)), np.zeros((0, 3, 3)), *ring, slot)
+        assert out[:4] == (last, n_wrong, n_confident, False)
+        assert all(np.array_equal(r, b) for r, b in zip(ring, before))
 
 
 @pytest.mark.parametrize("seed", range(4))

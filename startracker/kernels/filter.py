@@ -43,7 +43,7 @@ from startracker.kernels.sensor import consistency_nis
 
 __all__ = ["transition", "ekf_predict", "ekf_update", "attitude_residual", "quat_advance", "fuse_frame",
            "innovation_window", "timing_statistic", "fuse_frame_timed", "saturated_rate_noise", "gyro_jump_statistic",
-           "gyro_jump_looks", "delivery_rows", "delivery_counts", "append_intervals", "propagate_buffer",
+           "gyro_jump_looks", "delivery_rows", "delivery_counts", "delivery_tallies", "append_intervals", "propagate_buffer",
            "reported_attitude", "fuse_buffer_timed"]
 
 
@@ -821,6 +821,33 @@ def delivery_counts(accepted, wrong):
             if accepted[i]:
                 n_confident += 1
     return last, n_wrong, n_confident
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def delivery_tallies(accepted, wrong, nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot):
+    """A fused delivery's :func:`delivery_counts` and, when it has innovations, its :func:`innovation_window`, in one
+    call (the same operations as the two calls one after the other).
+
+    Parameters
+    ----------
+    accepted, wrong : ndarray of bool, shape (M,)
+        As :func:`delivery_counts`.
+    nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot :
+        As :func:`innovation_window`; with no innovation (``z`` of shape (0, 3)) the ring is left as it is.
+
+    Returns
+    -------
+    last_accepted, n_wrong, n_confidently_wrong : int
+        :func:`delivery_counts`' results.
+    windowed : bool
+        Whether the delivery had innovations (the window was updated).
+    window : tuple of 6 float
+        :func:`innovation_window`'s results (zeros when not ``windowed``).
+    """
+    last, n_wrong, n_confident = delivery_counts(accepted, wrong)
+    if z.shape[0] == 0:
+        return last, n_wrong, n_confident, False, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    return last, n_wrong, n_confident, True, innovation_window(nis, z, s, ring_nis, ring_n, ring_z, ring_s, slot)
 
 
 @njit(cache=True, no_cfunc_wrapper=True)

@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["sensor_samples"]
+from startracker.kernels.rotations import interval_rates_rows
+
+__all__ = ["sensor_samples", "gyro_samples_of_history"]
 
 
 @njit(cache=True, no_cfunc_wrapper=True)
@@ -81,3 +83,28 @@ def sensor_samples(u, scale, b_const, b_gm, b_rw, phi, gm_drive, xi_gm, rw_step,
         b_gm[a] = gm
         b_rw[a] = rw
     return y
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def gyro_samples_of_history(t, q, scale, b_const, b_gm, b_rw, phi, gm_drive, xi_gm, rw_step, xi_rw, white_sigma,
+                            xi_white, limit):
+    """A gyro's samples over the intervals of an attitude history, in one call: :func:`sensor_samples` of the mean
+    body rates :func:`startracker.kernels.rotations.interval_rates_rows` (the same operations as the two calls).
+
+    Parameters
+    ----------
+    t : ndarray, shape (K + 1,)
+        Instants of the history, s (increasing).
+    q : ndarray, shape (K + 1, 4)
+        Attitudes at ``t`` (body to inertial, non-zero quaternions).
+    scale, b_const, b_gm, b_rw, phi, gm_drive, xi_gm, rw_step, xi_rw, white_sigma, xi_white, limit :
+        As :func:`sensor_samples` (K rows of draws); ``b_gm`` and ``b_rw`` are advanced in place.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        The samples, rad/s: sample k over ``(t[k], t[k + 1]]``.
+    """
+    u = interval_rates_rows(t, q)
+    return sensor_samples(u, scale, b_const, b_gm, b_rw, phi, gm_drive, xi_gm, rw_step, xi_rw, white_sigma, xi_white,
+                          limit)

@@ -486,14 +486,6 @@ def _wrong_samples(t_true, q_meas, cov, times_s, q_body_to_icrs) -> np.ndarray:
                                              rows(q_body_to_icrs).reshape(-1, 4), VERDICT_CHI2_3)
 
 
-def _with_mid_times(plan: ExposurePlan) -> tuple:
-    """``(plan, start_offset_s, steps, exposure_s / 2)`` (:meth:`StarTrackerUnit._plan_for`); ``steps`` is
-    ``plan.exposure_start_times`` at ``-start_offset_s`` (``(-o + o) + steps`` is ``steps`` exactly)."""
-    steps = plan.exposure_start_times(-plan.start_offset_s)
-    steps.setflags(write=False)
-    return plan, plan.start_offset_s, steps, 0.5 * plan.exposure_s
-
-
 def _empty_stats(n_heads: int = 1, *, matching_latency_ms=0.0, matching_latency_ms_per_head=None,
                  matching_wall_clock_ms=0.0, matching_wall_clock_ms_per_head=None, wall_clock_breakdown_ms=None,
                  n_stars=0, exposures_per_frame=0, n_attitude_samples=0, update_rate_hz=0.0,
@@ -601,7 +593,7 @@ class StarTrackerUnit:
         self.gyro_period_s = 1.0 / config.gyro_rate_hz
         # the saturation monitor's per-configuration arguments: the gyro's range, whether its readings are noisy
         self._saturation_args = (float(self.gyro_spec.max_rate_rad_s), self.gyro_spec.arw_rad_sqrt_s > 0.0)
-        self._plans: dict[tuple, tuple] = {}  # _plan_for's (plan, start offset, steps, half exposure) per key
+        self._plans: dict[tuple, ExposurePlan] = {}
         # gyro jump monitor: the noise of one reading (the white noise of the sample average, plus the model floor)
         self._jump_sigma_rad_s = math.hypot(self.gyro_spec.arw_rad_sqrt_s * math.sqrt(config.gyro_rate_hz),
                                             GYRO_JUMP_MODEL_SIGMA_RAD_S)
@@ -1292,11 +1284,8 @@ class StarTrackerUnit:
         """Time from each loss of lock to the next lock, s."""
         return list(self._reacquisition_s)
 
-    def _plan_for(self, k: int, omega_hint) -> tuple:
-        """Head k's exposure plan for the next frame (its spec's exposure, its tracker's request), with what its
-        exposure mid-times take: ``(plan, start_offset_s, steps (N,), exposure_s / 2)``, ``steps`` its exposures'
-        start times after the first, s (read-only), so that ``((t + start_offset_s) + steps) + exposure_s / 2`` is
-        :meth:`ExposurePlan.exposure_mid_times` of a float ``t``, operation for operation."""
+    def _plan_for(self, k: int, omega_hint) -> ExposurePlan:
+        """Head k's exposure plan for the next frame (its spec's exposure, its tracker's request)."""
         exp = self.config.heads[k].exposure
         tracker = self.trackers[k]
         requested = tracker.requested_n_exposures  # a computed property: evaluate it once
@@ -1305,9 +1294,9 @@ class StarTrackerUnit:
             key = (1, exp.single_exposure_s, True)
             plan = self._plans.get(key)
             if plan is None:
-                plan = self._plans[key] = _with_mid_times(ExposurePlan(
+                plan = self._plans[key] = ExposurePlan(
                     n_exposures=1, exposure_s=exp.single_exposure_s, frame_period_s=exp.frame_period_s,
-                    start_offset_s=0.5 * (exp.frame_period_s - exp.single_exposure_s)))
+                    start_offset_s=0.5 * (exp.frame_period_s - exp.single_exposure_s))
             return plan
         if exp.n_exposures == "adaptive" and exp.n_rule == "paper000":
             # paper 000's rule: one more exposure per rate_per_exposure_deg_s of body rate (1 -> 21 over 0 -> 20°/s);
@@ -1335,8 +1324,8 @@ class StarTrackerUnit:
         key = (n, exp.exposure_s, False)
         plan = self._plans.get(key)
         if plan is None:  # plans are frozen: each N is built and validated once
-            plan = self._plans[key] = _with_mid_times(ExposurePlan(n_exposures=n, exposure_s=exp.exposure_s,
-                                                                   frame_period_s=exp.frame_period_s))
+            plan = self._plans[key] = ExposurePlan(n_exposures=n, exposure_s=exp.exposure_s,
+                                                   frame_period_s=exp.frame_period_s)
         return plan
 
     def _inertial_prior(self, tracker, t_frame: float):
@@ -1403,7 +1392,7 @@ class StarTrackerUnit:
         head_wall = [0.0] * n_heads
         bd_pm = bd_gst = bd_id = 0.0
         for k, (head, tracker) in enumerate(zip(self.heads, self.trackers)):
-            plan, start_offset_s, steps, half_exposure_s = self._plan_for(k, omega_hint)
+            plan = self._plan_for(k, omega_hint)
             bodies = (BrightBody("sun", tuple(sun)),) if sun is not None and k == 0 else ()
             det, scene = head.detections(self.catalogs[k], truth, plan, t_frame, rng, cfg.fidelity, bodies)
             if len(det) and sensor_kernels.any_nonpositive(det.intensity):
@@ -1412,11 +1401,7 @@ class StarTrackerUnit:
                 det = faults.modify_detections(det, t_mid, rng, head.camera.resolution)
             if k in blinded:
                 det = det.subset(np.zeros(0, dtype=np.int64))
-            if type(t_frame) is float and math.isfinite(t_frame):  # exposure_mid_times' own steps, without its calls
-                t_exp = (t_frame + start_offset_s) + steps  # a fresh array
-                t_exp += half_exposure_s
-            else:
-                t_exp = plan.exposure_mid_times(t_frame)
+            t_exp = plan.exposure_mid_times(t_frame)  # a fresh array
             if self.last_time_error_s != 0.0:
                 t_exp = t_exp + self.last_time_error_s
             prior = self._inertial_prior(tracker, t_frame) if self.head_modes[k] != "track" else None

@@ -175,9 +175,9 @@ def timed_calls(totals: collections.Counter):
                 setattr(module, attr, wrappers[id(obj)])
     step_recording = Spacecraft.step_recording
 
-    def timed_step_recording(self, substep_s, n_steps):
+    def timed_step_recording(self, substep_s, n_steps, **kwargs):
         t0 = clock()
-        out = step_recording(self, substep_s, n_steps)
+        out = step_recording(self, substep_s, n_steps, **kwargs)
         totals["physics"] += clock() - t0
         return out
 

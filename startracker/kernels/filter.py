@@ -906,6 +906,19 @@ def gyro_jump_looks(prev2, prev, cur, m1, den1, first1, m2, den2, first2, sigma2
     return 0, j
 
 
+@njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+def _copy_state_into(q, b, P, q_out, b_out, P_out):
+    """The filter's state (q (4,), b (3,), P (6, 6)) copied into the output arrays, element by element (a slice
+    assignment compiles numba's shape check and its error message, ~3 s)."""
+    for i in range(4):
+        q_out[i] = q[i]
+    for i in range(3):
+        b_out[i] = b[i]
+    for i in range(6):
+        for j in range(6):
+            P_out[i, j] = P[i, j]
+
+
 @njit(cache=True, no_cfunc_wrapper=True)
 def fuse_frame_timed(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd, z_last,
                      rate_noise, nis_out, z_out, s_out, u, timing_chi2_max, loose_ratio):
@@ -969,13 +982,7 @@ def fuse_frame_timed(q, b, P, t_s, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_ch
         return stat, loose, False, t_s, 0, 0
     # Φ and Q: the second pass propagates at least once more (to tm[0] > t0, or to tg[-1] > t_s), so it sets them
     # element by element: a slice assignment `q[:] = q0` compiles numba's shape check and its error message (~3 s)
-    for i in range(4):
-        q[i] = q0[i]
-    for i in range(3):
-        b[i] = b0[i]
-    for i in range(6):
-        for j in range(6):
-            P[i, j] = P0[i, j]
+    _copy_state_into(q0, b0, P0, q, b, P)
     t, n_acc, n_prop = fuse_frame(q, b, P, t0, wg, tg, qm, tm, rs, sigma_v, sigma_u, gate_chi2, accepted, phi, qd,
                                   z_last, rate_noise, nis_out, z_out, s_out)
     return stat, loose, True, t, n_acc, n_pre + n_prop
@@ -1067,13 +1074,7 @@ def propagate_buffer(q, b, P, t_s, wg, tg, rate_noise, sigma_v, sigma_u):
     q2 = np.empty(4)
     b2 = np.empty(3)
     P2 = np.empty((6, 6))
-    for i in range(4):
-        q2[i] = q[i]
-    for i in range(3):
-        b2[i] = b[i]
-    for i in range(6):
-        for j in range(6):
-            P2[i, j] = P[i, j]
+    _copy_state_into(q, b, P, q2, b2, P2)
     fuse_frame(q2, b2, P2, t_s, wg, tg, np.empty((0, 4)), np.empty(0), np.empty((0, 3, 3)), sigma_v, sigma_u, math.inf,
                np.empty(0, dtype=np.bool_), np.empty((6, 6)), np.empty((6, 6)), np.empty(3), rate_noise, np.empty(0),
                np.empty((0, 3)), np.empty((0, 3, 3)))
@@ -1206,13 +1207,7 @@ def fuse_buffer_timed(q, b, P, t_s, wg_buf, tg_buf, rn_buf, qm, tm, rs, sigma_v,
     ss = np.empty((m, 3, 3))
     if j == n:
         return (False, j, j, 0.0, False, False, 0.0, 0, 0, qbz, mats, accepted, zs, ss)
-    for i in range(4):
-        q2[i] = q[i]
-    for i in range(3):
-        b2[i] = b[i]
-    for i in range(6):
-        for k in range(6):
-            P2[i, k] = P[i, k]
+    _copy_state_into(q, b, P, q2, b2, P2)
     tg = np.empty(j + 1)
     wg = np.empty((j + 1, 3))
     rn = np.empty((j + 1, 3))

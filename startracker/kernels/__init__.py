@@ -80,8 +80,8 @@ def kernel_cache_is_empty(folder: Path | None = None) -> bool:
 # Set before any kernel module is imported (they import this package first), so every @njit(cache=True) below
 # writes to and reads from the digest-keyed folder.
 numba.config.CACHE_DIR = str(kernel_cache_dir())
-# A first use compiles for about a minute with no output of its own: say so once, where it starts.
+# A first use compiles for one to two minutes with no output of its own: say so once, where it starts.
 if not numba.config.DISABLE_JIT and kernel_cache_is_empty():
     warnings.warn(f"startracker-gym: no compiled kernels cached in {numba.config.CACHE_DIR} yet; this process compiles "
-                  "them as they are first used (about a minute of CPU in all, once; later processes load them from "
+                  "them as they are first used (one to two minutes of CPU in all, once; later processes load them from "
                   "the cache in seconds)", KernelCompileWarning, stacklevel=2)

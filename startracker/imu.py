@@ -293,27 +293,28 @@ class _ThreeAxisSensor:
         k = u2.shape[0]
         if k == 0:
             return np.empty((0, 3))
-        # The draws, in this order and amount: Gauss-Markov drive, random-walk steps, white noise, (K, 3) each for
-        # the terms that are on. One call draws them all: the generator's stream is the same as with one call each.
-        on = self._terms_on
-        xi = rng.standard_normal((on[3], k, 3)) if on[3] else _NO_DRAWS
+        x_gm, x_rw, x_white = self._draw_terms(k, rng)
         y = kimu.sensor_samples(
             u2, self._sf, self._b_const, self._b_gm, self._b_rw, self._phi,
-            self._gm_drive, xi[on[0]], self._rw_step, xi[on[1]], self._white_sigma, xi[on[2]], self._limit,
+            self._gm_drive, x_gm, self._rw_step, x_rw, self._white_sigma, x_white, self._limit,
         )
         self._n_samples += k
         return y[0] if single else y
+
+    def _draw_terms(self, k: int, rng):
+        """The draws of K samples, in this order and amount: Gauss-Markov drive, random-walk steps, white noise,
+        (K, 3) each for the terms that are on. One call draws them all: the generator's stream is the same as with
+        one call each. Returns the three terms' (K, 3) normals (a term that is off gets an unused view)."""
+        on = self._terms_on
+        xi = rng.standard_normal((on[3], k, 3)) if on[3] else _NO_DRAWS
+        return xi[on[0]], xi[on[1]], xi[on[2]]
 
     def _measure_history(self, t, q, rng) -> np.ndarray:
         # the mean rate of each interval and its samples in one compiled call; the draws as in _measure
         k = t.shape[0] - 1
         if k <= 0:
             return np.empty((0, 3))
-        on = self._terms_on
-        xi = rng.standard_normal((on[3], k, 3)) if on[3] else _NO_DRAWS
-        # with at most one term on, every term's index is 0: one view of the draws for the three
-        x_gm = xi[on[0]]
-        x_rw, x_white = (x_gm, x_gm) if on[3] <= 1 else (xi[on[1]], xi[on[2]])
+        x_gm, x_rw, x_white = self._draw_terms(k, rng)
         y = kimu.gyro_samples_of_history(
             t, q, self._sf, self._b_const, self._b_gm, self._b_rw, self._phi,
             self._gm_drive, x_gm, self._rw_step, x_rw, self._white_sigma, x_white, self._limit,
@@ -380,9 +381,10 @@ class Gyro(_ThreeAxisSensor):
         """
         return self._measure(omega_true_body, rng, validate)
 
-    def measure_history(self, times_s: np.ndarray, q_body_to_icrs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def measure_history(self, times_s, q_body_to_icrs, rng: np.random.Generator, *,
+                        validate: bool = True) -> np.ndarray:
         """Samples over each interval of a true attitude history: :meth:`measure` of its mean body rates (the
-        rotation vector of ``conj(q[k]) ⊗ q[k + 1]`` over ``t[k + 1] - t[k]``), in one compiled call, unchecked.
+        rotation vector of ``conj(q[k]) ⊗ q[k + 1]`` over ``t[k + 1] - t[k]``), in one compiled call.
 
         Parameters
         ----------
@@ -392,12 +394,27 @@ class Gyro(_ThreeAxisSensor):
             True attitudes at ``times_s`` (non-zero, float64, C-contiguous).
         rng : numpy.random.Generator
             Draws as :meth:`measure` of the K rates does (the same stream).
+        validate : bool
+            False skips the checks, for a caller passing float64 C-contiguous arrays of these shapes (the unit's own
+            truth history) and a ``numpy.random.Generator``.
 
         Returns
         -------
         ndarray, shape (K, 3)
             Measured rates over ``(times_s[k], times_s[k + 1]]``, rad/s, within ``±max_rate_rad_s``.
         """
+        if validate:
+            check_rng(rng)
+            times_s = np.ascontiguousarray(as_float_array(times_s, "times_s", ndim=1))
+            q_body_to_icrs = np.ascontiguousarray(as_float_array(q_body_to_icrs, "q_body_to_icrs", ndim=2,
+                                                                 last_dim=4))
+            if len(q_body_to_icrs) != len(times_s):
+                raise ValueError(f"q_body_to_icrs must have one row per instant of times_s ({len(times_s)}), "
+                                 f"got {len(q_body_to_icrs)}")
+            if np.any(np.diff(times_s) <= 0.0):
+                raise ValueError("times_s must be increasing")
+            if np.any(np.linalg.norm(q_body_to_icrs, axis=1) == 0.0):
+                raise ValueError("q_body_to_icrs must have non-zero rows")
         return self._measure_history(times_s, q_body_to_icrs, rng)
 
 

@@ -598,9 +598,6 @@ class StarTrackerUnit:
         self._jump_sigma_rad_s = math.hypot(self.gyro_spec.arw_rad_sqrt_s * math.sqrt(config.gyro_rate_hz),
                                             GYRO_JUMP_MODEL_SIGMA_RAD_S)
         self._jump_designs: dict[tuple, tuple] = {}
-        self._jump_looks: dict[tuple, tuple] = {}  # (n2, n_prev, n_cur): both looks' designs (_monitor_gyro_jump)
-        self._jump_delta = np.zeros(3)  # gyro_jump_looks' output row, reused
-        self._rate_noise_out = np.empty((0, 3))  # saturated_rate_noise's output rows, reused (_rate_noise)
         self._jump_sigma2 = self._jump_sigma_rad_s**2
         g = int(round(config.frame_period_s * config.gyro_rate_hz))
         self._allowance_span = g
@@ -767,13 +764,12 @@ class StarTrackerUnit:
             return omega_meas  # a clipped reading is the saturation monitor's; too few readings for a line and a step
         n_prev, n_cur = len(prev), len(omega_meas)
         # the second look (this span's readings after the previous span's) when the first finds nothing: one call
-        n2 = len(prev2) if GYRO_JUMP_SECOND_LOOK and len(prev2) >= 2 and n_prev >= 2 and not prev2_saturated else 0
-        looks = self._jump_looks.get((n2, n_prev, n_cur))
-        if looks is None:  # both looks' designs, under one key: one lookup a span
-            looks = self._jump_looks[(n2, n_prev, n_cur)] = (
-                self._jump_design(n_prev, n_cur) + (self._jump_design(n2, n_prev, n_cur) if n2 else _NO_JUMP_DESIGN))
-        m, den, first, m2, den2, first2 = looks
-        delta = self._jump_delta  # scratch: the kernel writes it before a look finds a step
+        m, den, first = self._jump_design(n_prev, n_cur)
+        if GYRO_JUMP_SECOND_LOOK and len(prev2) >= 2 and n_prev >= 2 and not prev2_saturated:
+            m2, den2, first2 = self._jump_design(len(prev2), n_prev, n_cur)
+        else:
+            m2, den2, first2 = _NO_JUMP_DESIGN
+        delta = np.zeros(3)
         sigma2 = self._jump_sigma2
         look, j = filter_kernels.gyro_jump_looks(
             np.ascontiguousarray(prev2, dtype=np.float64), np.ascontiguousarray(prev, dtype=np.float64),
@@ -781,7 +777,6 @@ class StarTrackerUnit:
             GYRO_JUMP_CHI2_3, delta)
         if look == 0:
             return omega_meas
-        delta = delta.copy()  # the step's own array (kept in the correction)
         if look == 2:
             return self._second_look(prev2, prev, prev_times, omega_meas, j, delta, den2)
         g = j - n_prev
@@ -854,15 +849,12 @@ class StarTrackerUnit:
         the previous reading bit for bit (a clip below the range: noise never repeats a float64 value; rates a
         user hands in may well repeat). Its true rate is unknown beyond the reading:
         :data:`SATURATED_RATE_SIGMA_RAD_S`, squared, enters the attitude process noise."""
-        out = self._rate_noise_out
-        if out.shape[0] != len(omega_meas):
-            out = self._rate_noise_out = np.empty((len(omega_meas), 3))
+        out = np.empty((len(omega_meas), 3))
         limit, noisy = self._saturation_args
         last = filter_kernels.saturated_rate_noise(
             np.ascontiguousarray(omega_meas, dtype=np.float64), self._omega_gyro, limit, own_gyro and noisy,
             _SATURATED_RATE_VAR_RAD2_S2, out)
-        # the kernel's output is a scratch reused span after span: a saturated span's is handed on as a copy
-        return (None, -1) if last < 0 else (out.copy(), last)
+        return (None, -1) if last < 0 else (out, last)
 
     # ------------------------------------------------------------------ one span of truth
     def observe(self, times_s, q_body_to_icrs, rng: np.random.Generator, omega_gyro=None) -> None:
@@ -903,7 +895,7 @@ class StarTrackerUnit:
         if omega_gyro is None:
             # average true rate over each gyro interval, from the quaternion increment (body frame)
             if own_history:  # the rates and their samples in one compiled call
-                omega_meas = self.gyro.measure_history(times, quats, rng)  # (G, 3) float64, built here
+                omega_meas = self.gyro.measure_history(times, quats, rng, validate=False)  # (G, 3) float64, built here
             else:
                 omega_avg = rk.quat_relative_rotvec(quats[:-1], quats[1:]) / (times[1:] - times[:-1])[:, None]
                 omega_meas = self.gyro.measure(omega_avg, rng, validate=False)  # (G, 3) float64, built here
@@ -957,38 +949,19 @@ class StarTrackerUnit:
         # even, as np.round)
         t_list = [smp.t_s for smp in samples]
         n_instants = len({round(t * 1e6) for t in t_list})
-        update_rate_hz = n_instants / duration_s
-        update_rate_hz_per_head = [v / duration_s for v in per_head_n]
-        # the frames' mean figures (zeros without frames); _empty_stats' keys in its order, in one literal
+        means = {}  # the frames' mean figures (none without frames: _empty_stats' zeros)
         if n_frames:
-            lat_mean, wall_mean = lat_sum / n_frames, wall_sum / n_frames
-            lat_per_head = [v / n_frames for v in per_head_lat]
-            wall_per_head = [v / n_frames for v in per_head_wall]
-            breakdown = dict(predict_match=bd_pm / n_frames, group_solve_test=bd_gst / n_frames,
-                             identify=bd_id / n_frames)
-        else:
-            lat_mean = wall_mean = 0.0
-            lat_per_head, wall_per_head = [0.0] * n_heads, [0.0] * n_heads
-            breakdown = dict(predict_match=0.0, group_solve_test=0.0, identify=0.0)
-        stats = {
-            "update_rate_hz": update_rate_hz,
-            "update_rate_hz_per_head": update_rate_hz_per_head,
-            "matching_latency_ms": lat_mean,
-            "matching_latency_ms_per_head": lat_per_head,
-            "n_stars": n_stars,
-            "exposures_per_frame": exposures_per_frame,
-            "n_attitude_samples": len(samples),
-            "lost_lock_events": self._lost_events,
-            "matching_wall_clock_ms": wall_mean,
-            "matching_wall_clock_ms_per_head": wall_per_head,
-            "wall_clock_breakdown_ms": breakdown,
-            "n_wrong_samples": 0,
-            "n_confidently_wrong_samples": 0,
-            "estimate_wrong": False,
-            "estimate_confidently_wrong": False,
-            "filter_restarts": 0,
-            "faults_active": faults.active_kinds(t0, times[-1]) if faults else [],
-        }
+            means = dict(matching_latency_ms=lat_sum / n_frames,
+                         matching_latency_ms_per_head=[v / n_frames for v in per_head_lat],
+                         matching_wall_clock_ms=wall_sum / n_frames,
+                         matching_wall_clock_ms_per_head=[v / n_frames for v in per_head_wall],
+                         wall_clock_breakdown_ms=dict(predict_match=bd_pm / n_frames,
+                                                      group_solve_test=bd_gst / n_frames, identify=bd_id / n_frames))
+        stats = _empty_stats(n_heads, **means, n_stars=n_stars, exposures_per_frame=exposures_per_frame,
+                             n_attitude_samples=len(samples), update_rate_hz=n_instants / duration_s,
+                             update_rate_hz_per_head=[v / duration_s for v in per_head_n],
+                             lost_lock_events=self._lost_events,
+                             faults_active=faults.active_kinds(t0, times[-1]) if faults else [])
         self.last_samples = samples
         if samples:  # judged against this span's truth now, counted when the filter has seen them
             t_arr, q_arr, c_arr = _sample_arrays(samples, t_list)
@@ -1173,13 +1146,7 @@ class StarTrackerUnit:
         t_frame, n_frame = self._timing_last
         self._timing[self._monitor_slot], self._timing_n[self._monitor_slot] = t_frame, n_frame
         n_timing = sum(self._timing_n)  # of 0.0 and 1.0: exact in any order
-        timing_sum = None
-        if n_timing > 0:
-            tv = self._timing.tolist()
-            if len(tv) == 10:  # numpy's pairwise sum of 10 values (eight lanes, then the rest in order), on floats
-                timing_sum = (((tv[0] + tv[1]) + (tv[2] + tv[3])) + ((tv[4] + tv[5]) + (tv[6] + tv[7])) + tv[8]) + tv[9]
-            else:
-                timing_sum = float(self._timing.sum())
+        timing_sum = float(self._timing.sum()) if n_timing > 0 else None
         timing_alarm = n_timing > 0 and timing_sum > _chi2_quantile_wilson_hilferty(n_timing, _MONITOR_Z)
         # the delivery's own mean (a drift that starts now is diluted tenfold in the window's mean, not here) and
         # its samples' own NIS
@@ -1304,11 +1271,7 @@ class StarTrackerUnit:
             # Only a prediction too uncertain for the frame step's own spacing test (one star's spots 1.5
             # shift_k_sigma prediction σ apart, or the frame is refused) lowers it.
             w = np.zeros(3) if omega_hint is None else omega_hint
-            if type(w) is np.ndarray and w.dtype == np.float64:  # Python floats: numpy's products and sum, unboxed
-                w0, w1, w2 = w.tolist()
-                rate_deg_s = math.degrees(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2))
-            else:
-                rate_deg_s = math.degrees(math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])))
+            rate_deg_s = math.degrees(math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])))
             n = min(max(1 + math.floor(rate_deg_s / exp.rate_per_exposure_deg_s + 0.5), 1), exp.max_exposures)
             n = max(1, min(n, tracker.separable_n_exposures(1.5 * tracker.shift_k_sigma)))
         elif exp.n_exposures == "adaptive":

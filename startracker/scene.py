@@ -625,28 +625,24 @@ def compute_scenes(cameras: Sequence[Camera], catalog: StarCatalog, attitude: At
     start_steps, path_steps, mid_rows = _plan_offsets(plan, s)
     t_first = t0 + plan.start_offset_s
     sampled = not validate and isinstance(attitude, tuple) and len(attitude) == 2
-    first = _camera_constants(cameras[0]) if sampled and len(cameras) == 1 else None
-    if first is not None and first[3] is not None:
-        # the per-frame path: scene_frame fills the instants (path instants, then the mid ones) in its call
-        instants = np.empty(n * s + n)
-        path_times = instants[:n * s].reshape(n, s)
-        times = instants[n * s:]
-    else:
-        instants = None
-        path_times = np.add.outer(t_first + start_steps, path_steps)  # starts[:, None] + path_steps[None, :]
-        times = path_times[:, s // 2].copy()
+    constants = [_camera_constants(camera) for camera in cameras]
+    # the path instants, exposure-major, then the mid ones, in one buffer; scene_frame (the per-frame path: sampled
+    # history, pinhole cameras) fills it in its call, otherwise numpy does (the same sums)
+    instants = np.empty(n * s + n)
+    path_times = instants[:n * s].reshape(n, s)
+    times = instants[n * s:]
+    if not (sampled and all(c[3] is not None for c in constants)):
+        np.add.outer(t_first + start_steps, path_steps, out=path_times)  # starts[:, None] + path_steps[None, :]
+        times[:] = path_times[:, s // 2]
     q_bw = None
     out = []
-    for camera in cameras:
-        (half_diag, q_cb, r_cb, pinhole, f_mm, k1, pix_mm, cx, cy, w_px, h_px,
-         f_px) = _camera_constants(camera) if first is None else first
+    for camera, consts in zip(cameras, constants):
+        (half_diag, q_cb, r_cb, pinhole, f_mm, k1, pix_mm, cx, cy, w_px, h_px, f_px) = consts
         if pinhole is not None and sampled:
             # the per-frame path: attitudes, cone search, projection and the kept stars' fields in one compiled call
             # the rotations only for the bright bodies' views; the other outputs packed by kind (one boxed array
             # each), the fields their rows
             r_cw = np.empty((path_times.size, 3, 3)) if bodies else _NO_ROTATIONS
-            if instants is None:  # several cameras: the instants computed above, written again (the same sums)
-                instants = np.concatenate([path_times.ravel(), times])
             q2, rows, mags, xy_path, visible = sk.scene_frame(
                 attitude[0], attitude[1], t_first, start_steps, path_steps, instants, q_cb, r_cb, s, *catalog.z_index,
                 catalog.vectors,

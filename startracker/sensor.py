@@ -81,10 +81,6 @@ _NO_FLUX = np.zeros(0)
 _NO_FLUX.setflags(write=False)
 
 
-_new = object.__new__  # build_checked's two steps, for the per-sample loop of StarTracker._track
-_set = object.__setattr__
-
-
 def _frozen(a: np.ndarray) -> np.ndarray:
     """``a`` made read-only (a constant shared by motion states)."""
     a.setflags(write=False)
@@ -485,8 +481,7 @@ class StarTracker:
         horizon = max(period, self._last_exp_centre + 1.5 * period - st.t_s)
         # the motion state holds (3, 3) float64 covariances: the kernel of prediction_sigma_px directly
         sigma = track_kernels.prediction_sigma_px(self._r_cam_to_body, st.cov_theta_rad2, st.cov_omega,
-                                                  st.cov_alpha + self._var_proc,  # _cov_alpha_total, inline
-                                                  float(horizon), self._f_px, self._rho_max_px)
+                                                  self._cov_alpha_total(st), float(horizon), self._f_px, self._rho_max_px)
         wx, wy, _ = np.dot(self._r_body_to_cam, w).tolist()  # BLAS gemv like @, without the matmul ufunc machinery
         travel_px = math.hypot(wx, wy) * period * self._f_px
         value = (n_rate, sigma, travel_px)
@@ -806,12 +801,8 @@ class StarTracker:
                                 *base)
             n_ok = len(kept)
             skipped = tuple(sorted(set(range(n_t)) - set(kept.tolist())))
-        # build_checked's construction inlined (one Python call less per sample): every field set at once
-        samples = []
-        for t, q, c, n in zip(t_s.tolist(), q_sol, cov_sol, n_sol.tolist()):
-            smp = _new(AttitudeSample)
-            _set(smp, "__dict__", {"t_s": t, "q_body_to_icrs": q, "covariance_rad2": c, "n_stars": n})
-            samples.append(smp)
+        samples = [build_checked(AttitudeSample, {"t_s": t, "q_body_to_icrs": q, "covariance_rad2": c, "n_stars": n})
+                   for t, q, c, n in zip(t_s.tolist(), q_sol, cov_sol, n_sol.tolist())]
         new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)
         status = f"tracking {n_ok}/{n_t} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
         if skipped:

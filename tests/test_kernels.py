@@ -496,6 +496,13 @@ def test_gyro_measure_history_against_scipy_rates_and_measure(seed):
             assert y_a.shape == (n - 1, 3) and np.array_equal(y_a, y_b)
             assert np.array_equal(g_a.bias_rad_s, g_b.bias_rad_s)
             assert r_a.random() == r_b.random()  # the same number of draws taken
+    g = Gyro(gyro_preset("tactical"), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="q_body_to_icrs"):
+        g.measure_history(t, q[:-1], np.random.default_rng(1))
+    with pytest.raises(ValueError, match="times_s"):
+        g.measure_history(t[::-1], q, np.random.default_rng(1))
+    with pytest.raises(TypeError, match="rng"):
+        g.measure_history(t, q, 1)
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -463,6 +463,9 @@ def scene_frame(t_samples, q_samples, t_first, start_steps, path_steps, instants
         for a in range(4):
             q_mid[0, e, a] = q_bw[e * s + s // 2, a]
             q_mid[1, e, a] = q_cam_mid[e, a]
-    if r_cam_to_icrs.shape[0] == r_cw.shape[0]:
-        r_cam_to_icrs[:] = r_cw
+    if r_cam_to_icrs.shape[0] == r_cw.shape[0]:  # element by element: a slice assignment compiles a shape check
+        for k in range(r_cw.shape[0]):
+            for i in range(3):
+                for j in range(3):
+                    r_cam_to_icrs[k, i, j] = r_cw[k, i, j]
     return q_mid, rows, mags, xy_path, visible

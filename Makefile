@@ -1,6 +1,8 @@
 # `make demo` and `make test` set up .venv on first use: a fresh machine needs only Python >= 3.11.
 #   make demo   light install (the package and matplotlib), then one closed-loop 120° slew with plots
 #   make test   the dev extra (pytest, SB3 + PyTorch, Ray) and the whole test suite
+# Both first compile the numba kernels in parallel processes (`startracker-gym compile`, about a minute on 2 cores on
+# a fresh machine or after a kernel edit, a few seconds when they are cached; the demo only the default env's).
 #   make bench  every benchmark script of this checkout (light install)
 PYTHON ?= python3
 VENV := .venv
@@ -32,9 +34,11 @@ $(DEV): pyproject.toml $(BASE)
 	touch $(DEV) $(DEMO)
 
 demo: $(DEMO)
+	$(CLI) compile --default-only
 	$(CLI) slew --axis x --angle-deg 120 --out demo_output --force
 
 test: $(DEV)
+	$(CLI) compile
 	$(PY) -m pytest tests
 
 bench: $(DEMO)

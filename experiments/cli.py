@@ -4,6 +4,7 @@
     startracker-gym hold      one attitude-hold episode: pointing stability and jitter, telemetry, plots
     startracker-gym campaign  Monte Carlo over seeds and a grid of settings, resumable, local or Ray
     startracker-gym bench     run benchmarks/ by name (source checkout), or the agent benchmark for any policy
+    startracker-gym compile   compile the numba kernels ahead of first use, in parallel processes
 
 Every value is checked before any work starts; a mistake prints one line naming it and exits with 2.
 """
@@ -318,6 +319,21 @@ _NO_CHECKOUT = ("the benchmark scripts belong to the source checkout and are not
                 "anywhere")
 
 
+def cmd_compile(args) -> int:
+    from startracker.compilation import compile_kernels
+
+    if args.jobs is not None and args.jobs < 1:
+        raise UsageError(f"--jobs must be >= 1, got {args.jobs}")
+    r = compile_kernels(args.jobs, default_only=args.default_only, progress=_progress_wanted(args))
+    if r.jobs == 0:
+        print("NUMBA_DISABLE_JIT is set: nothing to compile")
+        return 0
+    print(f"{r.n_signatures} kernel signatures: {r.n_compiled} compiled, {r.n_cached} already cached"
+          + (f", {r.n_stale} stale (they compile on first use)" if r.n_stale else "")
+          + f"; {r.wall_s:.1f} s in {r.jobs} process{'es' if r.jobs > 1 else ''}; cache {r.cache_dir}")
+    return 0
+
+
 def cmd_bench(args) -> int:
     if args.name == "agents":
         from experiments.agent_benchmark import run_agent_benchmark
@@ -447,10 +463,27 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--episodes", type=int, default=10, help="for 'agents': episodes per difficulty")
     b.add_argument("--no-progress", action="store_true", help="no progress bar (also off when stderr is not a terminal)")
     b.set_defaults(func=cmd_bench)
+
+    k = sub.add_parser("compile", formatter_class=_Help,
+                       help="compile the numba kernels ahead of first use, in parallel processes",
+                       description="Compile every kernel signature the env's configurations use into the on-disk "
+                                   "cache, in parallel worker processes (a first use otherwise compiles them one "
+                                   "after another, in the process that needs them). Quick when they are cached.")
+    k.add_argument("--jobs", type=int, default=None, help="worker processes (default: the CPUs available)")
+    k.add_argument("--default-only", action="store_true", help="only what the default env uses (the rest compiles "
+                   "on first use)")
+    k.add_argument("--no-progress", action="store_true", help="no progress line (also off when stderr is not a "
+                   "terminal)")
+    k.set_defaults(func=cmd_compile)
     return p
 
 
 def main(argv=None) -> int:
+    if (sys.argv[1:] if argv is None else list(argv))[:1] == ["compile"]:
+        import warnings
+
+        # the notice of an empty kernel cache, issued while the parser imports the env: this command fills it
+        warnings.filterwarnings("ignore", message="startracker-gym: no compiled kernels")
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

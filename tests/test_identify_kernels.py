@@ -207,6 +207,23 @@ def test_database_disk_round_trip(tmp_path):
         assert np.array_equal(a.q_cam_to_icrs, b.q_cam_to_icrs)
 
 
+def test_built_and_loaded_databases_hand_the_kernels_the_same_kind_of_arrays(tmp_path):
+    """Read-only arrays either way: numba compiles a kernel once per kind (writable or not) of each argument, so a
+    built database and a loaded (memory-mapped, read-only) one must not differ there."""
+    from numba import typeof
+
+    cat = load_catalog(4.5)
+    cam = camera_preset("paper000")
+    built = build_database(cat, cam, cache=False, disk_folder=tmp_path)
+    loaded = build_database(cat, cam, cache=False, disk_folder=tmp_path)
+    assert built.source == "built" and loaded.source == "disk"
+    kinds_built = [typeof(a) for a in built.search_arrays]
+    assert kinds_built == [typeof(a) for a in loaded.search_arrays]
+    assert all(not a.flags.writeable for a in built.search_arrays if isinstance(a, np.ndarray))
+    assert not built.nav.vectors.flags.writeable and not built.nav.hip.flags.writeable
+    assert cat.vectors.flags.writeable  # the caller's catalog is left as it was
+
+
 def test_corrupt_database_file_is_rebuilt(tmp_path):
     cat = load_catalog(4.0)
     cam = camera_preset("paper000")

@@ -50,7 +50,7 @@ ABOVE_DATA = {"scene", "imaging", "centroid", "identify", "track", "sensor", "he
 SUBSYSTEMS = {"color", "multifov"}
 SENSOR_LEVEL = {"head", "sensor", "onboard"}
 FORBIDDEN = {
-    **{room: ABOVE_DATA for room in ("rotations", "validation", "kernels", "cache", "catalog", "optics",
+    **{room: ABOVE_DATA for room in ("rotations", "validation", "kernels", "compilation", "cache", "catalog", "optics",
                                      "photometry", "kvector", "imu", "attitude", "filter", "processor")},
     "scene": ABOVE_DATA - {"scene"},
     "imaging": {"centroid", "identify", "track", "sensor", "head", "simulation", "onboard"} | SUBSYSTEMS,

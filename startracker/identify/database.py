@@ -130,8 +130,11 @@ class StarDatabase:
         :func:`startracker.kernels.identify.pair_count_table`)."""
         kv = self.pairs.kvector
         cdf, bin_rad = pair_count_table(kv.sorted_values)
-        return (self.nav.vectors, kv.sorted_values, kv.k, float(kv.a1), float(kv.b1), self.pairs.first,
-                self.pairs.second, self.grid_start, self.grid_stars, int(self.grid_cells), cdf, float(bin_rad))
+        # read-only views, whether the database was built here or loaded (memory-mapped): one compiled signature
+        ro = _read_only_view
+        return (ro(self.nav.vectors), ro(kv.sorted_values), ro(kv.k), float(kv.a1), float(kv.b1), ro(self.pairs.first),
+                ro(self.pairs.second), ro(self.grid_start), ro(self.grid_stars), int(self.grid_cells), ro(cdf),
+                float(bin_rad))
 
     @functools.cached_property
     def usable(self) -> bool:
@@ -243,7 +246,7 @@ def build_database(
     if disk_folder is False:
         disk = None
     if disk is None:
-        db = _build(catalog, camera, options)
+        db = _freeze(_build(catalog, camera, options))
     else:
         built: list = []
 
@@ -257,9 +260,34 @@ def build_database(
         else:
             db = database_from_arrays(arrays, camera, options)
             db = dataclasses.replace(db, load_time_s=time.perf_counter() - t0)
+        db = _freeze(db)
     if cache:
         _CACHE.setdefault(catalog, {})[key] = db
     return db
+
+
+def _read_only_view(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+def _freeze(obj, depth: int = 0):
+    """``obj`` with every array of it and of its dataclass fields (two levels down; not the camera, which is the
+    caller's) read-only, in place: the database's own arrays (its catalogs are subsets, copies of the caller's).
+
+    Built or loaded from the disk cache (memory-mapped, read-only), a database then hands the identification
+    kernels the same kind of arrays: numba compiles a kernel once per kind (writable or read-only) of each argument,
+    so a mix would compile the identification kernels twice (~15 s on a fresh machine)."""
+    for f in dataclasses.fields(obj):
+        if f.name == "camera":
+            continue
+        v = getattr(obj, f.name)
+        if isinstance(v, np.ndarray):
+            v.flags.writeable = False
+        elif depth < 2 and dataclasses.is_dataclass(v) and not isinstance(v, type):
+            _freeze(v, depth + 1)
+    return obj
 
 
 def _build(catalog: StarCatalog, camera: Camera, options: dict) -> StarDatabase:

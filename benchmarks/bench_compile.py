@@ -37,17 +37,9 @@ from startracker.compilation import default_jobs, load_signatures  # noqa: E402
 EPISODE = """
 import warnings
 warnings.simplefilter("ignore")
-import gymnasium as gym, envs
-from policies import EigenaxisSlewPolicy
-env = gym.make("startracker/AgileSlew-v0")
-policy = EigenaxisSlewPolicy.from_env(env)
-obs, _ = env.reset(seed=0, options={"slew_angle_deg": 120.0})
-done = False
-while not done:
-    obs, _, te, tr, _ = env.step(policy.act(obs))
-    done = te or tr
+from experiments.episode import run_episode
+run_episode(reset_options={"slew_angle_deg": 120.0})
 """
-
 
 def _run(cmd: list[str], cache: str) -> float:
     env = dict(os.environ, NUMBA_CACHE_DIR=cache, PYTHONPATH=str(ROOT))

@@ -3,8 +3,9 @@
     python scripts/record_kernel_signatures.py            # writes startracker/data/kernel_signatures.json
     python scripts/record_kernel_signatures.py --out F.json
 
-Runs whole 120° eigenaxis slews of ``startracker/AgileSlew-v0`` in a child process on an empty numba cache (a
-temporary folder, so the project's cache is untouched): the default configuration first, then pixel fidelity,
+Runs whole 120° eigenaxis slews of ``startracker/AgileSlew-v0`` (``experiments.episode.run_episode``, as
+``startracker-gym slew`` does, with its star-frame render) in a child process on an empty numba cache (a temporary
+folder, so the project's cache is untouched): the default configuration first, then pixel fidelity,
 single exposure, two heads, 3CMOS (alone and in pixel fidelity) and random faults (centroid and pixel). Every
 compilation of a ``startracker`` kernel is listed in the order it finished (callees before their callers), with
 its own compile time, the kernels it compiled as its callees
@@ -75,22 +76,13 @@ def _child(out: Path) -> None:
                 stack[-1][4].append(seen[key])
 
     event.register("numba:compile", Listener())
-    import gymnasium as gym
-
-    import envs  # noqa: F401  (registers the env ids)
-    from policies import EigenaxisSlewPolicy
+    from experiments.episode import run_episode
 
     for name, kw in WORKLOADS:
         current[0] = name
         t = time.perf_counter()
-        env = gym.make("startracker/AgileSlew-v0", **kw)
-        policy = EigenaxisSlewPolicy.from_env(env)
-        obs, _ = env.reset(seed=0, options={"slew_angle_deg": 120.0})
-        done = False
-        while not done:
-            obs, _, terminated, truncated, _ = env.step(policy.act(obs))
-            done = terminated or truncated
-        env.close()
+        # keep_frame: the star-frame render of `startracker-gym slew`'s plots too (make demo's kernels are "default")
+        run_episode(env_kwargs=kw, reset_options={"slew_angle_deg": 120.0}, keep_frame=True)
         print(f"  {name}: {time.perf_counter() - t:.0f} s", file=sys.stderr, flush=True)
     import numba
 

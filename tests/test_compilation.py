@@ -117,17 +117,10 @@ def test_recorded_list_covers_what_a_default_episode_calls(tmp_path):
     code = """
         import warnings, importlib, pkgutil
         warnings.simplefilter("ignore")
-        import gymnasium as gym, envs
         import startracker.kernels as K
-        from policies import EigenaxisSlewPolicy
+        from experiments.episode import run_episode
         from startracker.compilation import type_to_text
-        env = gym.make("startracker/AgileSlew-v0", max_episode_s=6.0)
-        policy = EigenaxisSlewPolicy.from_env(env)
-        obs, _ = env.reset(seed=0, options={"slew_angle_deg": 120.0})
-        done = False
-        while not done:
-            obs, _, te, tr, _ = env.step(policy.act(obs))
-            done = te or tr
+        run_episode(env_kwargs={"max_episode_s": 6.0}, reset_options={"slew_angle_deg": 120.0})
         for m in pkgutil.iter_modules(K.__path__):
             mod = importlib.import_module("startracker.kernels." + m.name)
             for disp in vars(mod).values():

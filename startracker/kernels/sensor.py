@@ -98,14 +98,9 @@ def rate_difference_at(omega1, cov1, omega0, cov0, dt_s, dt2_s2, cov_extra, leve
 
     Parameters
     ----------
-    omega1, omega0 : ndarray, shape (3,)
-        The later and the earlier rate, rad/s.
-    cov1, cov0 : ndarray, shape (3, 3)
-        Their covariances, (rad/s)².
-    dt_s : float
-        Time from the earlier to the later, s (> 0).
-    dt2_s2 : float
-        ``dt_s ** 2`` as the caller computes it, s².
+    omega1, cov1, omega0, cov0, dt_s, dt2_s2
+        As :func:`rate_difference`: the later and the earlier rate (3,), rad/s, their covariances (3, 3), (rad/s)²,
+        the time between them and its square, s and s².
     cov_extra : ndarray, shape (3, 3)
         Added to the acceleration's covariance for the carry (the unmodelled change), (rad/s²)².
     lever_s : float

@@ -8,10 +8,11 @@ Runs whole 120° eigenaxis slews of ``startracker/AgileSlew-v0`` (``experiments.
 folder, so the project's cache is untouched): the default configuration first, then pixel fidelity,
 single exposure, two heads, 3CMOS (alone and in pixel fidelity) and random faults (centroid and pixel). Every
 compilation of a ``startracker`` kernel is listed in the order it finished (callees before their callers), with
-its own compile time, the kernels it compiled as its callees
-(``after``: a worker of ``startracker-gym compile`` starts it once they are cached) and the first workload that
-compiled it (``startracker-gym compile --default-only`` takes those of "default"). Re-run it after changing a kernel's arguments; ``tests/test_compilation.py`` fails when the
-list no longer covers a default episode. Takes a few minutes (it compiles everything once, in one process).
+its own compile time, the kernels it compiled as its callees (``after``: a worker of ``startracker-gym compile``
+starts it once they are cached) and the first workload that compiled it (``startracker-gym compile
+--default-only`` takes those of "default"). Re-run it after changing a kernel's arguments;
+``tests/test_compilation.py`` fails when the list no longer covers a default episode. Takes a few minutes (it
+compiles everything once, in one process).
 """
 
 from __future__ import annotations
@@ -102,7 +103,8 @@ def main(argv=None) -> int:
         _child(args.out)
         return 0
     with tempfile.TemporaryDirectory(prefix="startracker-record-") as cache:
-        env = dict(os.environ, NUMBA_CACHE_DIR=cache, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+        path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache, PYTHONPATH=path)
         env.pop("NUMBA_DISABLE_JIT", None)
         t = time.perf_counter()
         print(f"recording on an empty cache ({cache}):", file=sys.stderr)

@@ -240,7 +240,8 @@ def compile_kernels(jobs: int | None = None, *, default_only: bool = False, prog
         Worker processes (default :func:`default_jobs`); 1 compiles in this process.
     default_only : bool
         Only the default env's signatures (those its recorded workload "default" compiled): what a first default
-        episode and `startracker-gym slew`'s frame render need, most of the work. The others still compile on first use.
+        episode and ``startracker-gym slew``'s frame render need, most of the work. The others still compile on
+        first use.
     progress : bool, optional
         A progress line on stderr (default: when stderr is a terminal).
     path : path-like, optional

@@ -138,4 +138,5 @@ def test_recorded_list_covers_what_a_default_episode_calls(tmp_path):
     recorded = {(e.module, e.name, "|".join(e.args)) for e in load_signatures()}
     assert len(called) >= 20
     missing = called - recorded
-    assert not missing, f"re-record with scripts/record_kernel_signatures.py; not in {SIGNATURES_PATH.name}: {sorted(missing)[:3]}"
+    assert not missing, (f"re-record with scripts/record_kernel_signatures.py; not in {SIGNATURES_PATH.name}: "
+                         f"{sorted(missing)[:3]}")

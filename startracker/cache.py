@@ -168,7 +168,6 @@ def load_or_build(key: dict, build, folder: Path | None = None) -> dict[str, np.
     Returns
     -------
     dict[str, ndarray]
-        Read-only arrays, whether loaded or built.
     """
     if not isinstance(key, dict) or not key:
         raise TypeError("key must be a non-empty dict")
@@ -176,7 +175,7 @@ def load_or_build(key: dict, build, folder: Path | None = None) -> dict[str, np.
     key_text = json.dumps(key, sort_keys=True, default=str)
     if folder is None:
         STATS.builds += 1
-        return _read_only(_validate_arrays(build()))
+        return _validate_arrays(build())
     path = entry_path(key, folder)
     if path.exists():
         arrays = _read(path, key_text)
@@ -194,16 +193,4 @@ def load_or_build(key: dict, build, folder: Path | None = None) -> dict[str, np.
         _write_atomic(path, arrays, key_text)
     except OSError:
         pass  # a read-only or full disk only costs the rebuild next time
-    return _read_only(arrays)
-
-
-def _read_only(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Read-only views of freshly built arrays, as loaded ones are: a database is never written to, and numba
-    compiles a kernel once per kind of array it is given (a writable and a read-only one would be two compilations
-    of the identification kernels, ~15 s)."""
-    out = {}
-    for k, a in arrays.items():
-        v = a.view()
-        v.flags.writeable = False
-        out[k] = v
-    return out
+    return arrays

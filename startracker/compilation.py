@@ -84,7 +84,7 @@ class CompileReport:
     n_stale : int
         Skipped: the kernel no longer exists, or its argument types no longer fit it.
     jobs : int
-        Worker processes used (1: this process).
+        Worker processes used (1: this process; 0: none, numba's JIT is disabled).
     wall_s : float
         Wall-clock time, s.
     cache_dir : str

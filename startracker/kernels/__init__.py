@@ -84,4 +84,5 @@ numba.config.CACHE_DIR = str(kernel_cache_dir())
 if not numba.config.DISABLE_JIT and kernel_cache_is_empty():
     warnings.warn(f"startracker-gym: no compiled kernels cached in {numba.config.CACHE_DIR} yet; this process compiles "
                   "them as they are first used (one to two minutes of CPU in all, once; later processes load them from "
-                  "the cache in seconds). `startracker-gym compile` compiles them ahead, in parallel processes", KernelCompileWarning, stacklevel=2)
+                  "the cache in seconds). `startracker-gym compile` compiles them ahead, in parallel processes",
+                  KernelCompileWarning, stacklevel=2)

@@ -371,6 +371,34 @@ def _reference_windows(sub_xy, sub_w, sigma, n_cols, n_rows):
     return img
 
 
+def test_each_path_is_cut_into_its_own_segments():
+    """spots_from_paths: every path gets the fewest segments no longer than 4σ of its own σ, whatever the frame's
+    other paths (a long debris streak does not multiply a star's spots); its sub-spots stay <= σ/2 apart, and it
+    keeps its signal and its time-mean position (the midpoint of a path swept at a constant speed)."""
+    from startracker.kernels.imaging import spots_from_paths
+
+    t = np.linspace(0.0, 1.0, 5)[:, None]
+    star = np.array([10.0, 20.0]) + t * np.array([1.5, 0.5])  # 1.58 px
+    debris = np.array([5.0, 60.0]) + t * np.array([300.0, -40.0])  # 302.7 px
+    still = np.array([50.0, 50.0]) + 0.0 * t
+    paths = np.stack([star, debris, still])
+    total = np.array([100.0, 50.0, 7.0])
+    sigma = np.array([1.2, 1.2, 0.8])
+    sub, w, sig, path, along, length = spots_from_paths(paths, total, sigma)
+    lengths = np.hypot(*(paths[:, -1] - paths[:, 0]).T)
+    expected = [max(1, int(np.ceil(n / (4.0 * s)))) for n, s in zip(lengths, sigma)]
+    assert expected == [1, 64, 1]
+    assert [int(np.count_nonzero(path == e)) for e in range(3)] == expected
+    assert np.all(length <= 4.0 * sig * (1 + 1e-12))
+    assert np.all(length / sub.shape[1] <= 0.5 * sig * (1 + 1e-12))  # sub-spot spacing
+    for e in range(3):
+        m = path == e
+        assert w[m].sum() == pytest.approx(total[e], rel=1e-12)
+        mean_xy = (sub[m] * w[m][..., None]).sum(axis=(0, 1)) / w[m].sum()
+        np.testing.assert_allclose(mean_xy, 0.5 * (paths[e, 0] + paths[e, -1]), atol=1e-9)
+        np.testing.assert_allclose(np.sort(sig[m]), sigma[e])
+
+
 def test_window_kernel_integrates_the_gaussian_over_pixels():
     """render_spot_windows == the pixel-integrated Gaussians summed over sub-spots, spots across the edges included."""
     from startracker.kernels.imaging import render_spot_windows

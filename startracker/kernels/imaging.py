@@ -780,9 +780,10 @@ def lookup_pixels(lin, buf, uniq):
 def spots_from_paths(paths, total, sigma_px):
     """Cut spot paths into segments no longer than 4σ and each segment into sub-spots at most σ/2 apart.
 
-    Every path is cut into the same number of segments (enough for the longest path relative to its σ), at
-    instants evenly spaced in time; each segment into the same number K of sub-spots at the midpoints of equal
-    time slices, sharing the path's signal equally.
+    Each path is cut into its own number of segments (the fewest no longer than 4σ of its own σ: a long debris
+    streak in the frame does not cut the stars' short paths into as many), at instants evenly spaced in time; every
+    segment into the same number K of sub-spots (enough for the longest segment) at the midpoints of equal time
+    slices, sharing the path's signal equally.
 
     Parameters
     ----------
@@ -796,7 +797,7 @@ def spots_from_paths(paths, total, sigma_px):
     Returns
     -------
     sub_xy : ndarray, shape (P, K, 2)
-        Sub-spot centres, px (P = E × segments per path, path-major).
+        Sub-spot centres, px (P = the paths' segments in all, path-major).
     sub_w : ndarray, shape (P, K)
     sigma : ndarray, shape (P,)
     path : ndarray of int64, shape (P,)
@@ -807,32 +808,37 @@ def spots_from_paths(paths, total, sigma_px):
         Segment lengths, px.
     """
     e_n, s, _ = paths.shape
-    ratio = 0.0
+    n_seg = np.empty(e_n, dtype=np.int64)
+    first = np.empty(e_n + 1, dtype=np.int64)  # each path's first segment
+    first[0] = 0
     for e in range(e_n):
         ln = 0.0
         for i in range(s - 1):
             ln += math.hypot(paths[e, i + 1, 0] - paths[e, i, 0], paths[e, i + 1, 1] - paths[e, i, 1])
-        ratio = max(ratio, ln / (4.0 * sigma_px[e]))
-    n_seg = max(1, int(math.ceil(ratio)))
-    n_p = e_n * n_seg
-    knots = np.empty((e_n, n_seg + 1, 2))
-    for j in range(n_seg + 1):
-        f = j * (s - 1.0) / n_seg
-        i0 = min(int(math.floor(f)), s - 2)
-        w = f - i0
-        for e in range(e_n):
+        n_seg[e] = max(1, int(math.ceil(ln / (4.0 * sigma_px[e]))))
+        first[e + 1] = first[e] + n_seg[e]
+    n_p = first[e_n]
+    knots = np.empty((n_p + e_n, 2))  # path e's knots at rows first[e] + e ... first[e + 1] + e
+    for e in range(e_n):
+        ns = n_seg[e]
+        k0 = first[e] + e
+        for j in range(ns + 1):
+            f = j * (s - 1.0) / ns
+            i0 = min(int(math.floor(f)), s - 2)
+            w = f - i0
             for c in range(2):
-                knots[e, j, c] = paths[e, i0, c] * (1 - w) + paths[e, i0 + 1, c] * w
+                knots[k0 + j, c] = paths[e, i0, c] * (1 - w) + paths[e, i0 + 1, c] * w
     length = np.empty(n_p)
     along = np.empty((n_p, 2))
     sigma = np.empty(n_p)
     path = np.empty(n_p, dtype=np.int64)
     k_ratio = 0.0
     for e in range(e_n):
-        for j in range(n_seg):
-            p = e * n_seg + j
-            dx = knots[e, j + 1, 0] - knots[e, j, 0]
-            dy = knots[e, j + 1, 1] - knots[e, j, 1]
+        for j in range(n_seg[e]):
+            p = first[e] + j
+            k = p + e
+            dx = knots[k + 1, 0] - knots[k, 0]
+            dy = knots[k + 1, 1] - knots[k, 1]
             ln = math.sqrt(dx * dx + dy * dy)
             length[p] = ln
             if ln > 1e-12:
@@ -848,13 +854,14 @@ def spots_from_paths(paths, total, sigma_px):
     sub_xy = np.empty((n_p, n_k, 2))
     sub_w = np.empty((n_p, n_k))
     for e in range(e_n):
-        w = total[e] / (n_seg * n_k)
-        for j in range(n_seg):
-            p = e * n_seg + j
+        w = total[e] / (n_seg[e] * n_k)
+        for j in range(n_seg[e]):
+            p = first[e] + j
+            k0 = p + e
             for k in range(n_k):
                 f = (k + 0.5) / n_k
-                sub_xy[p, k, 0] = knots[e, j, 0] + (knots[e, j + 1, 0] - knots[e, j, 0]) * f
-                sub_xy[p, k, 1] = knots[e, j, 1] + (knots[e, j + 1, 1] - knots[e, j, 1]) * f
+                sub_xy[p, k, 0] = knots[k0, 0] + (knots[k0 + 1, 0] - knots[k0, 0]) * f
+                sub_xy[p, k, 1] = knots[k0, 1] + (knots[k0 + 1, 1] - knots[k0, 1]) * f
                 sub_w[p, k] = w
     return sub_xy, sub_w, sigma, path, along, length
 

@@ -150,6 +150,8 @@ def text_to_type(text: str):
 
     Raises
     ------
+    TypeError
+        If ``text`` is not a str.
     ValueError
         If ``text`` is not such a form.
     """

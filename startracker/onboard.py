@@ -59,7 +59,7 @@ from startracker.multifov import MultiFovSensor
 from startracker.processor import ProcessorModel
 from startracker.rotations import quat_interpolate
 from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
-from startracker.sensor import MODES, AttitudeSample, StarTracker
+from startracker.sensor import MODES, NO_SAMPLES, AttitudeSample, AttitudeSamples, StarTracker
 from startracker.spec import IDENTIFY_METHODS, MATCHERS, StarTrackerSpec, as_spec
 from startracker.validation import as_float_array, check_real, check_rng
 
@@ -468,11 +468,10 @@ def judge_estimate(estimate: "Estimate", q_true_body_to_icrs) -> tuple[bool, boo
     return wrong, wrong and bool(estimate.valid)
 
 
-def _sample_arrays(samples, times=None):
-    """Times (n,), attitudes (n, 4) and covariances (n, 3, 3) of a non-empty list of samples (``times``: their
-    ``t_s`` as a list, when the caller has it)."""
+def _sample_arrays(samples):
+    """Times (n,), attitudes (n, 4) and covariances (n, 3, 3) of a non-empty list of samples."""
     # the (4,) rows joined flat, then shaped: the same values as np.array of the rows, with less shape discovery
-    return (np.array([s.t_s for s in samples] if times is None else times),
+    return (np.array([s.t_s for s in samples]),
             np.concatenate([s.q_body_to_icrs for s in samples]).reshape(-1, 4),
             np.array([s.covariance_rad2 for s in samples]))
 
@@ -552,7 +551,8 @@ class StarTrackerUnit:
     last_time_error_s : float
         Timestamp error injected into the last frame (fault hooks), s.
     last_samples : list of startracker.sensor.AttitudeSample
-        The star tracker's samples over the last :meth:`observe` span.
+        The star tracker's samples over the last :meth:`observe` span (built on first access from
+        ``last_attitude_samples``, the same samples as arrays: :class:`startracker.sensor.AttitudeSamples`).
     bias_allowance_rad_s : float
         The gyro bias change the reported covariance allows for, rad/s (:meth:`estimate`): a step the gyro jump
         monitor finds 99 % of the time, unseen, stays within the verdict's χ² bound.
@@ -613,7 +613,8 @@ class StarTrackerUnit:
         self.tracker_mode = "lost"
         self.last_stats = _empty_stats(len(self.heads))
         self.last_time_error_s = 0.0
-        self.last_samples: list[AttitudeSample] = []
+        self.last_attitude_samples: AttitudeSamples = NO_SAMPLES
+        self._last_samples_list: list[AttitudeSample] | None = None
         self._omega_gyro = np.zeros(3)
         self._frame_head_samples = [0] * len(self.heads)
         self._last_frame = None
@@ -655,6 +656,13 @@ class StarTrackerUnit:
         self._frame_latency_ms = 0.0
         self._frame_wall_ms = 0.0
         self._reported = None  # the last reported covariance and its key (_protected_cov)
+
+    @property
+    def last_samples(self) -> list[AttitudeSample]:
+        """The star tracker's samples over the last :meth:`observe` span, as objects (see the class docstring)."""
+        if self._last_samples_list is None:
+            self._last_samples_list = self.last_attitude_samples.to_list()
+        return self._last_samples_list
 
     @property
     def ekf(self) -> AttitudeEKF | None:
@@ -908,7 +916,8 @@ class StarTrackerUnit:
         self._undo_clip_onset_step(rate_noise is not None, self._gyro_prev_saturated)
         omega_meas = self._monitor_gyro_jump(omega_meas, times, rate_noise is not None)
 
-        samples = []
+        batches = []  # the frames' samples (AttitudeSamples), when they have any
+        n_samples = 0
         # per-frame figures summed in Python floats (the same additions as numpy's on float64)
         lat_sum = wall_sum = 0.0
         per_head_n = [0.0] * n_heads
@@ -929,11 +938,14 @@ class StarTrackerUnit:
             # a clipped reading's change is the clip, not the body's acceleration: then the rate is held instead
             if k_end > k and (rate_noise is None or not rate_noise[k:k_end + 1].any()):
                 alpha = (omega_meas[k_end] - omega_meas[k]) / ((k_end - k) * gyro_period_s)
-            new = self.process_frame((times, quats), tf, rng, omega_gyro=omega_meas[k], alpha_gyro=alpha)
-            samples.extend(new)
+            new = self._frame_samples((times, quats), tf, rng, omega_gyro=omega_meas[k], alpha_gyro=alpha)
+            n_new = len(new)
+            if n_new:
+                batches.append(new)
+                n_samples += n_new
             if offsets is not None:
-                offsets.extend([self.last_time_error_s] * len(new))
-            frame_ends.append((len(samples), tf + frame_period_s + 1e-3 * self._frame_latency_ms))
+                offsets.extend([self.last_time_error_s] * n_new)
+            frame_ends.append((n_samples, tf + frame_period_s + 1e-3 * self._frame_latency_ms))
             lat_sum += self._frame_latency_ms
             wall_sum += self._frame_wall_ms
             head_latency, head_wall, f_pm, f_gst, f_id, n_stars, exposures_per_frame, _ = self._frame_figures
@@ -945,10 +957,10 @@ class StarTrackerUnit:
             bd_pm += f_pm
             bd_gst += f_gst
             bd_id += f_id
+        span = AttitudeSamples.concatenate(batches)
         # distinct attitude instants: heads exposed at the same instant add samples, not updates (round half to
-        # even, as np.round)
-        t_list = [smp.t_s for smp in samples]
-        n_instants = len({round(t * 1e6) for t in t_list})
+        # even, as np.round); one head's samples are distinct exposure instants already
+        n_instants = n_samples if n_heads == 1 else len({round(t * 1e6) for t in span.t_s.tolist()})
         means = {}  # the frames' mean figures (none without frames: _empty_stats' zeros)
         if n_frames:
             means = dict(matching_latency_ms=lat_sum / n_frames,
@@ -958,15 +970,17 @@ class StarTrackerUnit:
                          wall_clock_breakdown_ms=dict(predict_match=bd_pm / n_frames,
                                                       group_solve_test=bd_gst / n_frames, identify=bd_id / n_frames))
         stats = _empty_stats(n_heads, **means, n_stars=n_stars, exposures_per_frame=exposures_per_frame,
-                             n_attitude_samples=len(samples), update_rate_hz=n_instants / duration_s,
+                             n_attitude_samples=n_samples, update_rate_hz=n_instants / duration_s,
                              update_rate_hz_per_head=[v / duration_s for v in per_head_n],
                              lost_lock_events=self._lost_events,
                              faults_active=faults.active_kinds(t0, times[-1]) if faults else [])
-        self.last_samples = samples
-        if samples:  # judged against this span's truth now, counted when the filter has seen them
-            t_arr, q_arr, c_arr = _sample_arrays(samples, t_list)
+        self.last_attitude_samples = span
+        self._last_samples_list = None
+        if n_samples:  # judged against this span's truth now, counted when the filter has seen them
+            # the trackers' own float64 arrays (or their concatenation): the filter reads them, nothing writes them
+            t_arr, q_arr, c_arr = span.t_s, span.q_body_to_icrs, span.covariance_rad2
             t_true = t_arr - np.array(offsets) if offsets is not None else t_arr
-            if own_history:  # the sample arrays are fresh float64 ones (_sample_arrays): no copies
+            if own_history:
                 wrong = sensor_kernels.wrong_sample_flags(t_true, q_arr, c_arr, times, quats, VERDICT_CHI2_3)
             else:
                 wrong = _wrong_samples(t_true, q_arr, c_arr, times, quats)
@@ -1327,6 +1341,11 @@ class StarTrackerUnit:
         list of startracker.sensor.AttitudeSample
             Samples of all heads, stamped with their exposure instants (plus any injected timestamp error).
         """
+        return self._frame_samples(truth, t_frame, rng, omega_gyro, alpha_gyro).to_list()
+
+    def _frame_samples(self, truth, t_frame: float, rng: np.random.Generator, omega_gyro=None,
+                       alpha_gyro=None) -> AttitudeSamples:
+        """:meth:`process_frame`'s work; its samples as arrays (the heads' rows in head order)."""
         cfg = self.config
         omega_hint = omega_gyro
         t_mid = t_frame + 0.5 * cfg.frame_period_s
@@ -1338,7 +1357,7 @@ class StarTrackerUnit:
         if faults and faults.frame_dropped(t_mid):
             self._frame_figures = ([0.0] * n_heads, [0.0] * n_heads, 0.0, 0.0, 0.0, 0, 0, 0)
             self._stats = None  # the frame's figures, built when asked for (last_stats)
-            return []
+            return NO_SAMPLES
         sun = None
         blinded = ()  # no head blinded without faults
         if faults:
@@ -1350,7 +1369,7 @@ class StarTrackerUnit:
             blinded = faults.blinded_heads(t_mid)
             self.last_time_error_s = faults.timestamp_error_s(t_mid, rng)
         prev_mode = self.tracker_mode
-        samples, n_matched, n_exp, frames = [], 0, 0, []
+        batches, n_samples, n_matched, n_exp, frames = [], 0, 0, 0, []
         head_latency = [0.0] * n_heads
         head_wall = [0.0] * n_heads
         bd_pm = bd_gst = bd_id = 0.0
@@ -1385,13 +1404,15 @@ class StarTrackerUnit:
             bd_pm += predict_match_ms
             bd_gst += wall_k - predict_match_ms
             bd_id += identify_ms
-            n_det, res_samples = len(det), res.samples
-            self._frame_head_samples[k] = len(res_samples)
+            n_det, res_samples = len(det), res.attitude_samples
+            n_res = len(res_samples)
+            self._frame_head_samples[k] = n_res
             # the modelled latency; one processor serves the heads in turn: their budgets add up
-            head_latency[k] = cfg.processor.frame_latency_ms(n_det, len(res_samples),
-                                                             self.head_modes[k] != "track" and n_det > 0)
+            head_latency[k] = cfg.processor.frame_latency_ms(n_det, n_res, self.head_modes[k] != "track" and n_det > 0)
             self.head_modes[k] = res.mode
-            samples.extend(res_samples)
+            if n_res:
+                batches.append(res_samples)
+                n_samples += n_res
             n_matched += int(res.n_matched)
             n_exp = max(n_exp, int(plan.n_exposures))
             frames.append((scene, det))
@@ -1408,9 +1429,9 @@ class StarTrackerUnit:
             self._last_frame = frames[0]
         self._frame_latency_ms = sum(head_latency)
         self._frame_wall_ms = sum(head_wall)
-        self._frame_figures = (head_latency, head_wall, bd_pm, bd_gst, bd_id, n_matched, n_exp, len(samples))
+        self._frame_figures = (head_latency, head_wall, bd_pm, bd_gst, bd_id, n_matched, n_exp, n_samples)
         self._stats = None  # the frame's figures, built when asked for (last_stats): observe reads them as they are
-        return samples
+        return AttitudeSamples.concatenate(batches)
 
     @property
     def last_stats(self) -> dict:

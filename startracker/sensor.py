@@ -73,7 +73,7 @@ from startracker.kernels import rotations as rk
 from startracker.kernels import sensor as sensor_kernels
 from startracker.kernels import track as track_kernels
 
-__all__ = ["StarTracker", "FrameResult", "AttitudeSample", "MotionState", "MODES"]
+__all__ = ["StarTracker", "FrameResult", "AttitudeSample", "AttitudeSamples", "NO_SAMPLES", "MotionState", "MODES"]
 
 MODES = ("lost", "acquire", "track")
 
@@ -108,6 +108,59 @@ class AttitudeSample:
 
 
 @dataclass(frozen=True)
+class AttitudeSamples:
+    """Attitude samples as arrays, one row per exposure instant, time-ordered: what a frame (or an observed span)
+    produced, without one object per sample. The per-frame path hands these on; :meth:`to_list` gives the
+    :class:`AttitudeSample` objects.
+
+    Attributes
+    ----------
+    t_s : ndarray, shape (n,)
+        Exposure instants (mid-exposure), s.
+    q_body_to_icrs : ndarray, shape (n, 4)
+    covariance_rad2 : ndarray, shape (n, 3, 3)
+        As :attr:`AttitudeSample.covariance_rad2`, rad².
+    n_stars : ndarray of int64, shape (n,)
+    """
+
+    t_s: np.ndarray
+    q_body_to_icrs: np.ndarray
+    covariance_rad2: np.ndarray
+    n_stars: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def to_list(self) -> list[AttitudeSample]:
+        """One :class:`AttitudeSample` per row (Python float ``t_s`` and int ``n_stars``), on copies of the arrays:
+        the samples share no memory with this batch."""
+        if not len(self.t_s):
+            return []
+        q, c = self.q_body_to_icrs.copy(), self.covariance_rad2.copy()
+        return [build_checked(AttitudeSample, {"t_s": t, "q_body_to_icrs": qi, "covariance_rad2": ci, "n_stars": n})
+                for t, qi, ci, n in zip(self.t_s.tolist(), q, c, self.n_stars.tolist())]
+
+    @staticmethod
+    def concatenate(batches) -> "AttitudeSamples":
+        """The rows of several batches, in order (one batch: itself; none: :data:`NO_SAMPLES`)."""
+        batches = [b for b in batches if len(b)]
+        if not batches:
+            return NO_SAMPLES
+        if len(batches) == 1:
+            return batches[0]
+        return build_checked(AttitudeSamples, {
+            "t_s": np.concatenate([b.t_s for b in batches]),
+            "q_body_to_icrs": np.concatenate([b.q_body_to_icrs for b in batches]),
+            "covariance_rad2": np.concatenate([b.covariance_rad2 for b in batches]),
+            "n_stars": np.concatenate([b.n_stars for b in batches])})
+
+
+NO_SAMPLES = AttitudeSamples(_frozen(np.zeros(0)), _frozen(np.zeros((0, 4))), _frozen(np.zeros((0, 3, 3))),
+                             _frozen(np.zeros(0, dtype=np.int64)))
+"""The empty batch (read-only arrays, shared)."""
+
+
+@dataclass(frozen=True)
 class FrameResult:
     """What one frame produced.
 
@@ -115,8 +168,10 @@ class FrameResult:
     ----------
     mode : str
         Mode after this frame: "lost", "acquire" or "track".
+    attitude_samples : AttitudeSamples
+        Up to N samples (one per solved exposure instant), time-ordered, as arrays.
     samples : list of AttitudeSample
-        Up to N samples (one per solved exposure instant), time-ordered.
+        The same samples as objects (a property: built at each access, on copies of the arrays).
     n_matched : int
         Detections used (tracking) or identified (lost-in-space).
     n_detections : int
@@ -141,7 +196,7 @@ class FrameResult:
     """
 
     mode: str
-    samples: list
+    attitude_samples: AttitudeSamples
     n_matched: int
     n_detections: int
     matching_latency_ms: float
@@ -153,6 +208,11 @@ class FrameResult:
     identify_latency_ms: float = 0.0
     residual_arcsec: float = float("inf")
     skipped_instants: tuple = ()
+
+    @property
+    def samples(self) -> list[AttitudeSample]:
+        """:attr:`attitude_samples` as :class:`AttitudeSample` objects (a new list at each access: keep it)."""
+        return self.attitude_samples.to_list()
 
 
 @dataclass(frozen=True)
@@ -203,7 +263,7 @@ class _Candidate:
 class _Attempt:
     ok: bool
     status: str
-    samples: list
+    samples: AttitudeSamples
     n_matched: int = 0
     n_predicted: int = 0
     radius_px: float = 0.0
@@ -575,10 +635,10 @@ class StarTracker:
         self._last_gyro = None if gyro is None else (t_frame, gyro, self._var_gyro)
         self._last_exp_centre = 0.5 * (float(t_exp[0]) + float(t_exp[-1]))
         r = result
-        rate = len(r.samples) / dt_frame
+        rate = len(r.attitude_samples) / dt_frame
         if r.mode == self._mode and r.update_rate_hz == rate:  # built final (the tracking paths): no copy
             return r
-        return FrameResult(self._mode, r.samples, r.n_matched, r.n_detections, r.matching_latency_ms,
+        return FrameResult(self._mode, r.attitude_samples, r.n_matched, r.n_detections, r.matching_latency_ms,
                            rate, r.status, r.n_exposures, r.n_predicted, r.radius_px,
                            r.identify_latency_ms, r.residual_arcsec, r.skipped_instants)
 
@@ -606,17 +666,17 @@ class StarTracker:
             tried.append(f"prior failed ({att.status})")
         if len(t_exp) != 1:
             status = "; ".join(tried + [f"{len(t_exp)}-exposure frame: lost-in-space needs a single exposure"])
-            return FrameResult("lost", [], 0, len(xy), latency, 0.0, status, len(t_exp))
+            return FrameResult("lost", NO_SAMPLES, 0, len(xy), latency, 0.0, status, len(t_exp))
         res = self._identify(xy, intensity)
         if not res.success:
             status = "; ".join(tried + [f"identification failed: {res.status}"])
-            return FrameResult("lost", [], 0, len(xy), latency, 0.0, status, 1, identify_latency_ms=res.latency_ms)
+            return FrameResult("lost", NO_SAMPLES, 0, len(xy), latency, 0.0, status, 1, identify_latency_ms=res.latency_ms)
         q_body, cov_body = self._camera_to_body(res)
         self._candidate = _Candidate(float(t_exp[0]), q_body, cov_body, int(res.n_matched))
         self._mode = "acquire"
         status = "; ".join(tried + [f"identified {res.n_matched} stars ({res.residual_arcsec:.1f}\"), awaiting confirmation"])
         return FrameResult(
-            "acquire", [], int(res.n_matched), len(xy), latency, 0.0, status, 1,
+            "acquire", NO_SAMPLES, int(res.n_matched), len(xy), latency, 0.0, status, 1,
             identify_latency_ms=res.latency_ms, residual_arcsec=float(res.residual_arcsec),
         )
 
@@ -640,18 +700,18 @@ class StarTracker:
             return self._result(att, xy, t_exp, status=status)
         if len(t_exp) != 1:
             self._mode, self._candidate = "lost", None
-            return FrameResult("lost", [], 0, len(xy), 0.0, 0.0, "acquisition without a gyro needs a single-exposure frame", len(t_exp))
+            return FrameResult("lost", NO_SAMPLES, 0, len(xy), 0.0, 0.0, "acquisition without a gyro needs a single-exposure frame", len(t_exp))
         res = self._identify(xy, intensity)
         if not res.success:
             self._mode, self._candidate = "lost", None
-            return FrameResult("lost", [], 0, len(xy), 0.0, 0.0, f"acquisition: identification failed: {res.status}", 1,
+            return FrameResult("lost", NO_SAMPLES, 0, len(xy), 0.0, 0.0, f"acquisition: identification failed: {res.status}", 1,
                                identify_latency_ms=res.latency_ms)
         q2, cov2 = self._camera_to_body(res)
         rate = quat_to_rotvec(quat_multiply(quat_conjugate(cand.q_body_to_icrs), q2)) / dt
         if np.linalg.norm(rate) > self.max_rate_rad_s:
             self._candidate = _Candidate(float(t_exp[0]), q2, cov2, int(res.n_matched))
             status = f"identifications disagree ({np.degrees(np.linalg.norm(rate)):.1f} °/s implied): new candidate"
-            return FrameResult("acquire", [], int(res.n_matched), len(xy), 0.0, 0.0, status, 1,
+            return FrameResult("acquire", NO_SAMPLES, int(res.n_matched), len(xy), 0.0, 0.0, status, 1,
                                identify_latency_ms=res.latency_ms, residual_arcsec=float(res.residual_arcsec))
         # The mean rate over [t1, t2] is a rate measurement at the midpoint.
         cov_m = (cand.cov_theta_rad2 + cov2) / dt**2
@@ -723,7 +783,7 @@ class StarTracker:
             if spacing_px < 1.5 * self.shift_k_sigma * sig_pred:
                 latency = (time.perf_counter() - t0) * 1e3
                 return _Attempt(False, f"prediction too uncertain for {len(t_exp)} exposures (spots {spacing_px:.1f} px "
-                                       f"apart, prediction σ {sig_pred:.1f} px)", [], 0, 0, r, latency)
+                                       f"apart, prediction σ {sig_pred:.1f} px)", NO_SAMPLES, 0, 0, r, latency)
         t_ref = float(st.t_s)
         if self._frame_model is not None:
             # the state's attitude normalised, prediction's attitudes, cone search, projection, matching, N Wahba,
@@ -746,7 +806,7 @@ class StarTracker:
                                          cov_w, cov_a)
         latency = (time.perf_counter() - t0) * 1e3
         if n_pred == 0:
-            return _Attempt(False, "no catalog star predicted on the detector", [], 0, 0, r, latency)
+            return _Attempt(False, "no catalog star predicted on the detector", NO_SAMPLES, 0, 0, r, latency)
         frac = n_matched / n_pred
         n_t = len(t_exp)
         n_ok = n_off + len(kept)  # the solved instants: accept_instants' off ones and kept ones
@@ -769,11 +829,11 @@ class StarTracker:
         # a refusal's fields after its status and (no) samples
         base = (n_matched, n_pred, r, latency, rms, skipped)
         if not n_ok:
-            return _Attempt(False, f"no exposure instant with {self.min_stars_per_instant} matched stars ({n_matched}/{n_pred} matched)", [], *base)
+            return _Attempt(False, f"no exposure instant with {self.min_stars_per_instant} matched stars ({n_matched}/{n_pred} matched)", NO_SAMPLES, *base)
         if frac < self.min_matched_fraction:
-            return _Attempt(False, f"matched {n_matched}/{n_pred} predicted spots ({100 * frac:.0f} % < {100 * self.min_matched_fraction:.0f} %)", [], *base)
+            return _Attempt(False, f"matched {n_matched}/{n_pred} predicted spots ({100 * frac:.0f} % < {100 * self.min_matched_fraction:.0f} %)", NO_SAMPLES, *base)
         if rms > self.max_residual_arcsec:
-            return _Attempt(False, f"residual {rms:.1f}\" > {self.max_residual_arcsec:.1f}\"", [], *base)
+            return _Attempt(False, f"residual {rms:.1f}\" > {self.max_residual_arcsec:.1f}\"", NO_SAMPLES, *base)
         # A frame matched one exposure off leaves the first (prediction lagging) or last (leading) instant
         # without stars while the others are full; a state already off by one exposure agrees with its own
         # prediction, so only this test sees it.
@@ -784,10 +844,10 @@ class StarTracker:
             median = ordered[half] if len(ordered) % 2 else 0.5 * (ordered[half - 1] + ordered[half])
             if min(n_st[0], n_st[-1]) < 0.5 * median:
                 return _Attempt(False, f"first/last instant nearly empty ({n_st[0]}, {n_st[-1]} stars, median "
-                                       f"{median:.0f}): matched one exposure off", [], *base)
+                                       f"{median:.0f}): matched one exposure off", NO_SAMPLES, *base)
         # Innovation: solved vs predicted attitude at each solved instant.
         if nis > self.innovation_gate:
-            return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", [], *base)
+            return _Attempt(False, f"solution off the prediction (innovation χ² {nis:.0f} > {self.innovation_gate:.0f})", NO_SAMPLES, *base)
         # Smoothness: an instant matched one exposure off (its spots taken for the neighbour's) sits on the trajectory
         # at the wrong time. Neither the residual nor the mean innovation over many instants sees one such instant;
         # its attitude against a polynomial through the other instants does (kernels.sensor.smooth_instants). Then
@@ -797,12 +857,13 @@ class StarTracker:
         # shares memory with another or with the tracker.
         if n_off:
             if 3 * n_off > n_ok:
-                return _Attempt(False, f"{n_off}/{n_ok} instants off a smooth motion (matched an exposure off)", [],
-                                *base)
+                return _Attempt(False, f"{n_off}/{n_ok} instants off a smooth motion (matched an exposure off)",
+                                NO_SAMPLES, *base)
             n_ok = len(kept)
             skipped = tuple(sorted(set(range(n_t)) - set(kept.tolist())))
-        samples = [build_checked(AttitudeSample, {"t_s": t, "q_body_to_icrs": q, "covariance_rad2": c, "n_stars": n})
-                   for t, q, c, n in zip(t_s.tolist(), q_sol, cov_sol, n_sol.tolist())]
+        # the kernel's fresh arrays (t_s and n_sol rows of its packed outputs), no object per sample
+        samples = build_checked(AttitudeSamples, {"t_s": t_s, "q_body_to_icrs": q_sol, "covariance_rad2": cov_sol,
+                                                  "n_stars": n_sol})
         new_state = self._update_state(st, t_s, q_sol, cov_sol, gyro, t_frame)
         status = f"tracking {n_ok}/{n_t} instants, {n_matched}/{n_pred} spots, r = {r:.1f} px"
         if skipped:
@@ -903,9 +964,9 @@ class StarTracker:
 
     def _result(self, att: _Attempt, xy, t_exp, status=None, samples=None) -> FrameResult:
         text = att.status if status is None else (status if not att.ok else f"{status}; {att.status}")
-        samples = samples if samples else []  # the attempt's own fresh list (nothing else holds it): no copy
+        samples = NO_SAMPLES if samples is None else samples  # the attempt's own arrays (nothing else holds them)
         return build_checked(FrameResult, {
-            "mode": self._mode, "samples": samples, "n_matched": att.n_matched, "n_detections": len(xy),
+            "mode": self._mode, "attitude_samples": samples, "n_matched": att.n_matched, "n_detections": len(xy),
             "matching_latency_ms": att.latency_ms, "update_rate_hz": len(samples) / self._dt_frame, "status": text,
             "n_exposures": len(t_exp), "n_predicted": att.n_predicted, "radius_px": att.radius_px,
             "identify_latency_ms": 0.0, "residual_arcsec": att.residual_arcsec, "skipped_instants": att.skipped})

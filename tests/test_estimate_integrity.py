@@ -227,15 +227,16 @@ def test_a_clipped_gyro_is_not_taken_for_the_body_acceleration(monkeypatch):
     env = gym.make("startracker/AgileSlew-v0", max_episode_s=6.0,
                    faults=[dict(kind="gyro_saturation", t_start_s=2.05, duration_s=1.0, severity=2.0)])
     obs, info = env.reset(seed=0, options={"slew_angle_deg": 120.0})
-    unit = env.unwrapped.avionics
+    tracker = env.unwrapped.avionics.trackers[0]
     seen = []
-    original = unit.process_frame
+    original = tracker.process_frame
 
-    def spy(truth, t_frame, rng, omega_gyro=None, alpha_gyro=None, **kw):
-        seen.append((t_frame, alpha_gyro))
-        return original(truth, t_frame, rng, omega_gyro=omega_gyro, alpha_gyro=alpha_gyro, **kw)
+    def spy(xy, intensity, exposure_times, frame_time, omega_body=None, q_body_prior=None, alpha_body=None, **kw):
+        seen.append((frame_time, alpha_body))
+        return original(xy, intensity, exposure_times, frame_time, omega_body, q_body_prior, alpha_body=alpha_body,
+                        **kw)
 
-    monkeypatch.setattr(unit, "process_frame", spy)
+    monkeypatch.setattr(tracker, "process_frame", spy)
     pol = EigenaxisSlewPolicy.from_env(env)
     for _ in range(40):
         obs, r, te, tr, info = env.step(pol.act(obs))

@@ -352,6 +352,7 @@ def test_frame_results_samples_and_states_are_complete_dataclasses(cam, nav):
     res = run(st, cam, nav, slew, range(5), rng)[-1][3]
     assert res.mode == "track" and res.samples
     _field_names_and_values_hold(res)
+    _field_names_and_values_hold(res.attitude_samples)
     for s in res.samples:
         assert isinstance(s, AttitudeSample)
         _field_names_and_values_hold(s)

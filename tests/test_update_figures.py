@@ -88,3 +88,51 @@ def test_paper000_rule_gives_one_exposure_per_degree_per_second(rate_deg_s):
     for mode, n_exp, rate_hz in late:
         assert n_exp == 1 + round(rate_deg_s)
         assert rate_hz == pytest.approx(10.0 * n_exp)
+
+
+def test_samples_as_arrays_and_as_objects_are_the_same_true_samples():
+    """The unit hands its samples on as arrays (``last_attitude_samples``) and to the user as objects
+    (``last_samples``): the same rows, both heads' in head order, the objects on their own memory; and they are
+    samples of the truth (each attitude within its own covariance of the true attitude at its instant)."""
+    from scipy.spatial.transform import Rotation
+
+    from startracker.rotations import quat_integrate
+
+    config = UnitConfig(camera="paper000", n_heads=2, gyro_grade="navigation")
+    unit = StarTrackerUnit(config)
+    rng = np.random.default_rng(3)
+    unit.reset(rng)
+    q0 = quat_random(np.random.default_rng(5))
+    w = np.radians([4.0, 0.0, 0.0])
+    g = int(round(config.frame_period_s * config.gyro_rate_hz))
+    times = np.arange(20 * g + 1) / config.gyro_rate_hz
+    quats = quat_integrate(np.broadcast_to(q0, (len(times), 4)), w, times)
+    r0 = Rotation.from_quat(q0, scalar_first=True)
+    n_multi = nees_max = 0.0
+    for f in range(20):
+        sl = slice(f * g, (f + 1) * g + 1)
+        unit.observe(times[sl], quats[sl], rng)
+        batch, objs = unit.last_attitude_samples, unit.last_samples
+        assert len(batch) == len(objs) == unit.last_stats["n_attitude_samples"]
+        per_head = unit.last_stats["update_rate_hz_per_head"]
+        assert len(objs) == round(sum(per_head) * config.frame_period_s)
+        for i, s in enumerate(objs):
+            assert type(s.t_s) is float and type(s.n_stars) is int
+            assert s.t_s == batch.t_s[i] and s.n_stars == batch.n_stars[i]
+            assert np.array_equal(s.q_body_to_icrs, batch.q_body_to_icrs[i])
+            assert np.array_equal(s.covariance_rad2, batch.covariance_rad2[i])
+            assert not np.shares_memory(s.q_body_to_icrs, batch.q_body_to_icrs)
+            assert not np.shares_memory(s.covariance_rad2, batch.covariance_rad2)
+            # the truth at the sample's instant, by scipy (body-frame error rotation vector)
+            r_true = r0 * Rotation.from_rotvec(w * s.t_s)
+            e = (r_true.inv() * Rotation.from_quat(s.q_body_to_icrs, scalar_first=True)).as_rotvec()
+            nees_max = max(nees_max, float(e @ np.linalg.solve(s.covariance_rad2, e)))
+        n_head0 = round(per_head[0] * config.frame_period_s)
+        if n_head0 > 1 and len(objs) > n_head0:  # both heads tracked a multi-exposure frame
+            n_multi += 1
+            t = [s.t_s for s in objs]
+            # each head's rows in time order, head 0's first: the same instants in both heads
+            assert t[:n_head0] == sorted(t[:n_head0]) and t[n_head0:] == sorted(t[n_head0:])
+            assert unit.last_stats["update_rate_hz"] == pytest.approx(len(set(t)) / config.frame_period_s)
+    assert n_multi >= 10
+    assert nees_max < 30.0  # χ²(3) beyond 30 has probability ~1e-6

@@ -54,11 +54,12 @@ from startracker.head import HEAD_CAMERAS, make_head
 from startracker.imu import GYRO_GRADES, Gyro, gyro_preset
 from startracker.kernels import filter as filter_kernels
 from startracker.kernels import rotations as rk
+from startracker.kernels import scene as scene_kernels
 from startracker.kernels import sensor as sensor_kernels
 from startracker.multifov import MultiFovSensor
 from startracker.processor import ProcessorModel
 from startracker.rotations import quat_interpolate
-from startracker.scene import BrightBody, ExposurePlan, choose_n_exposures
+from startracker.scene import BrightBody, ExposurePlan, image_flow_matrices
 from startracker.sensor import MODES, NO_SAMPLES, AttitudeSample, AttitudeSamples, StarTracker
 from startracker.spec import IDENTIFY_METHODS, MATCHERS, StarTrackerSpec, as_spec
 from startracker.validation import as_float_array, check_real, check_rng
@@ -594,6 +595,13 @@ class StarTrackerUnit:
         # the saturation monitor's per-configuration arguments: the gyro's range, whether its readings are noisy
         self._saturation_args = (float(self.gyro_spec.max_rate_rad_s), self.gyro_spec.arw_rad_sqrt_s > 0.0)
         self._plans: dict[tuple, ExposurePlan] = {}
+        # the no-overlap rule's constants per head (N from the rate, startracker.scene.choose_n_exposures' checks
+        # held by the spec): its kernels run every frame
+        self._no_overlap = [
+            (image_flow_matrices(h.camera), h.camera.r_cam_to_body, float(spec.exposure.frame_period_s),
+             float(spec.exposure.exposure_s), float(h.sensor_model.sigma_px), float(spec.exposure.min_gap_sigma),
+             int(spec.exposure.max_exposures))
+            for h, spec in zip(self.heads, config.heads)]
         # gyro jump monitor: the noise of one reading (the white noise of the sample average, plus the model floor)
         self._jump_sigma_rad_s = math.hypot(self.gyro_spec.arw_rad_sqrt_s * math.sqrt(config.gyro_rate_hz),
                                             GYRO_JUMP_MODEL_SIGMA_RAD_S)
@@ -1292,9 +1300,9 @@ class StarTrackerUnit:
             # N is what the tracker can separate given its prediction (requested_n_exposures) and what the detector
             # can separate given the smear (the no-overlap rule of the exposure plan): the smaller of the two
             rate = np.zeros(3) if omega_hint is None else omega_hint
-            n_img = choose_n_exposures(rate, self.heads[k].camera, exp.frame_period_s, exp.exposure_s,
-                                       psf_sigma_px=self.heads[k].sensor_model.sigma_px, n_max=exp.max_exposures,
-                                       min_gap_sigma=exp.min_gap_sigma)
+            flow, r_cam_to_body, period_s, exposure_s, sigma_px, gap_sigma, n_max = self._no_overlap[k]
+            n_img = scene_kernels.no_overlap_exposures(scene_kernels.min_image_speed(flow, r_cam_to_body, rate),
+                                                       period_s, exposure_s, sigma_px, gap_sigma, n_max)
             n = max(1, min(n_img, requested))
         else:
             n = int(exp.n_exposures)

@@ -44,6 +44,7 @@ __all__ = [
     "ExposurePlan",
     "choose_n_exposures",
     "min_image_speed_px_s",
+    "image_flow_matrices",
     "BrightBody",
     "BrightBodyView",
     "Scene",
@@ -193,8 +194,17 @@ def _flow_matrices(camera: Camera, n_grid: int = 7) -> np.ndarray:
 _FLOW_CACHE: dict = {}
 
 
-def _flow_matrices_cached(camera: Camera) -> np.ndarray:
-    """:func:`_flow_matrices` of a (frozen) camera, computed once per camera object (read-only)."""
+def image_flow_matrices(camera: Camera) -> np.ndarray:
+    """The pinhole motion field of ``camera`` at a 7×7 grid of detector points: matrices J (49, 2, 3), px per rad,
+    with ``xy_dot = J @ ω_cam`` (ω in the camera frame, rad/s). Computed once per (frozen) camera object; the array
+    is read-only and shared (:func:`startracker.kernels.scene.min_image_speed` takes it).
+
+    Parameters
+    ----------
+    camera : Camera
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a startracker.optics.Camera, got {type(camera).__name__}")
     hit = _FLOW_CACHE.get(id(camera))
     if hit is not None and hit[0] is camera:
         return hit[1]
@@ -227,9 +237,7 @@ def min_image_speed_px_s(rate_rad_s, camera: Camera) -> float:
         return float(camera.focal_length_px * w)
     if w.shape != (3,):
         raise ValueError(f"rate_rad_s must be a scalar or a (3,) body-frame vector, got shape {w.shape}")
-    w_cam = camera.r_cam_to_body.T @ w
-    speeds = np.linalg.norm(_flow_matrices_cached(camera) @ w_cam, axis=1)
-    return float(speeds.min())
+    return float(sk.min_image_speed(image_flow_matrices(camera), camera.r_cam_to_body, np.ascontiguousarray(w)))
 
 
 def choose_n_exposures(
@@ -276,8 +284,7 @@ def choose_n_exposures(
     if tau > period:
         raise ValueError(f"exposure_s ({tau}) must not exceed frame_period_s ({period})")
     v = min_image_speed_px_s(rate_rad_s, camera)
-    n = math.floor(v * period / (v * tau + k * sigma) * (1 + 1e-12))
-    return int(min(max(n, 1), n_max))
+    return int(sk.no_overlap_exposures(v, period, tau, sigma, k, n_max))
 
 
 # --------------------------------------------------------------------------------------------- bodies

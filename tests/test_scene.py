@@ -1,5 +1,7 @@
 """Scene truth: exposure plans, the no-overlap rule for N, star positions at the exposure instants."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -105,6 +107,30 @@ def test_rule_formula_by_hand():
     expected = int(np.floor(v * 0.1 / (v * 2e-3 + 6 * 1.5)))
     assert choose_n_exposures(np.radians(5.0), CAM, 0.1, 2e-3, 1.5) == expected
     assert min_image_speed_px_s(np.radians(5.0), CAM) == pytest.approx(v)
+
+
+def test_slowest_image_speed_is_the_finite_difference_of_the_pinhole():
+    """The slowest star-image speed over the 7×7 detector grid for a body rate, against the image motion of stars
+    through an independent pinhole (``pinhole`` above): each grid point's star direction, the camera turned by
+    ±ω dt about its mounting, the central difference of the projected positions."""
+    from scipy.spatial.transform import Rotation
+
+    mount = quat_from_rotvec(np.radians([10.0, -25.0, 40.0]))
+    cam = dataclasses.replace(CAM, q_cam_to_body=mount)
+    r_cb = Rotation.from_quat(mount, scalar_first=True)
+    f_px = cam.focal_length_mm / (cam.pixel_size_um * 1e-3)
+    cx, cy = cam.principal_point
+    w, h = cam.resolution
+    xs, ys = np.meshgrid(np.linspace(-0.5, w - 0.5, 7), np.linspace(-0.5, h - 0.5, 7))
+    u = np.column_stack([(xs.ravel() - cx) / f_px, (ys.ravel() - cy) / f_px, np.ones(49)])
+    dt = 1e-6
+    for w_body in (np.radians([3.0, -1.0, 0.5]), np.radians([0.0, 0.0, 12.0]), np.radians([-7.0, 2.0, -4.0])):
+        w_cam = r_cb.inv().apply(w_body)
+        # a star fixed in inertial space seen from a camera turned by θ: v_cam(θ) = R(θ)ᵀ u
+        ahead = pinhole(cam, Rotation.from_rotvec(w_cam * dt).inv().apply(u))
+        behind = pinhole(cam, Rotation.from_rotvec(-w_cam * dt).inv().apply(u))
+        truth = np.min(np.linalg.norm(ahead - behind, axis=1) / (2 * dt))
+        assert min_image_speed_px_s(w_body, cam) == pytest.approx(truth, rel=1e-6, abs=1e-6)
 
 
 def test_pure_roll_has_a_still_point_so_n_is_one():

@@ -24,6 +24,8 @@ __all__ = [
     "select_near_detector",
     "project_scene",
     "scene_frame",
+    "min_image_speed",
+    "no_overlap_exposures",
 ]
 
 
@@ -469,3 +471,64 @@ def scene_frame(t_samples, q_samples, t_first, start_steps, path_steps, instants
                 for j in range(3):
                     r_cam_to_icrs[k, i, j] = r_cw[k, i, j]
     return q_mid, rows, mags, xy_path, visible
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def min_image_speed(flow, r_cam_to_body, omega_body):
+    """Slowest star-image speed over a grid of detector points, px/s: ``min_i |J_i R_cam_to_bodyᵀ ω|``.
+
+    Parameters
+    ----------
+    flow : ndarray, shape (P, 2, 3)
+        Pinhole motion-field matrices at the grid points (:func:`startracker.scene.image_flow_matrices`):
+        ``xy_dot = J ω_cam``, px per rad.
+    r_cam_to_body : ndarray, shape (3, 3)
+        Camera mounting.
+    omega_body : ndarray, shape (3,)
+        Body-frame angular velocity, rad/s (finite).
+
+    Returns
+    -------
+    float
+        The least speed, px/s (inf for P = 0).
+    """
+    w0, w1, w2 = omega_body[0], omega_body[1], omega_body[2]
+    c0 = r_cam_to_body[0, 0] * w0 + r_cam_to_body[1, 0] * w1 + r_cam_to_body[2, 0] * w2
+    c1 = r_cam_to_body[0, 1] * w0 + r_cam_to_body[1, 1] * w1 + r_cam_to_body[2, 1] * w2
+    c2 = r_cam_to_body[0, 2] * w0 + r_cam_to_body[1, 2] * w1 + r_cam_to_body[2, 2] * w2
+    best = np.inf
+    for i in range(flow.shape[0]):
+        x = flow[i, 0, 0] * c0 + flow[i, 0, 1] * c1 + flow[i, 0, 2] * c2
+        y = flow[i, 1, 0] * c0 + flow[i, 1, 1] * c1 + flow[i, 1, 2] * c2
+        v = math.sqrt(x * x + y * y)
+        if v < best:
+            best = v
+    return best
+
+
+@njit(cache=True, no_cfunc_wrapper=True)
+def no_overlap_exposures(speed_px_s, frame_period_s, exposure_s, psf_sigma_px, min_gap_sigma, n_max):
+    """Exposures per frame by the no-overlap rule: ``clip(floor(v T / (v τ + k σ)), 1, n_max)`` (the largest N whose
+    evenly spread exposures leave ``k σ`` px between the end of one streak of a star and the start of the next;
+    a relative 1e-12 upwards so that an exact quotient is not floored one below).
+
+    Parameters
+    ----------
+    speed_px_s : float
+        Image speed v, px/s (>= 0; :func:`min_image_speed`).
+    frame_period_s, exposure_s : float
+        T and τ, s (0 < τ <= T).
+    psf_sigma_px : float
+        σ, px (> 0).
+    min_gap_sigma : float
+        k (> 0).
+    n_max : int
+        Upper bound (>= 1).
+
+    Returns
+    -------
+    int
+    """
+    n = math.floor(speed_px_s * frame_period_s / (speed_px_s * exposure_s + min_gap_sigma * psf_sigma_px)
+                   * (1 + 1e-12))
+    return min(max(n, 1), n_max)

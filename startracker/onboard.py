@@ -621,7 +621,7 @@ class StarTrackerUnit:
         self.tracker_mode = "lost"
         self.last_stats = _empty_stats(len(self.heads))
         self.last_time_error_s = 0.0
-        self.last_attitude_samples: AttitudeSamples = NO_SAMPLES
+        self._span = NO_SAMPLES  # the last span's samples: the trackers' own arrays, which the filter reads later
         self._last_samples_list: list[AttitudeSample] | None = None
         self._omega_gyro = np.zeros(3)
         self._frame_head_samples = [0] * len(self.heads)
@@ -669,8 +669,24 @@ class StarTrackerUnit:
     def last_samples(self) -> list[AttitudeSample]:
         """The star tracker's samples over the last :meth:`observe` span, as objects (see the class docstring)."""
         if self._last_samples_list is None:
-            self._last_samples_list = self.last_attitude_samples.to_list()
+            self._last_samples_list = self._span.to_list()
         return self._last_samples_list
+
+    @property
+    def last_attitude_samples(self) -> AttitudeSamples:
+        """The star tracker's samples over the last :meth:`observe` span, as arrays (read-only views: the filter
+        fuses these rows when the processor is done with them)."""
+        span = self._span
+        if not len(span):
+            return NO_SAMPLES
+
+        def view(a):
+            v = a.view()
+            v.setflags(write=False)
+            return v
+
+        return AttitudeSamples(view(span.t_s), view(span.q_body_to_icrs), view(span.covariance_rad2),
+                               view(span.n_stars))
 
     @property
     def ekf(self) -> AttitudeEKF | None:
@@ -982,7 +998,7 @@ class StarTrackerUnit:
                              update_rate_hz_per_head=[v / duration_s for v in per_head_n],
                              lost_lock_events=self._lost_events,
                              faults_active=faults.active_kinds(t0, times[-1]) if faults else [])
-        self.last_attitude_samples = span
+        self._span = span
         self._last_samples_list = None
         if n_samples:  # judged against this span's truth now, counted when the filter has seen them
             # the trackers' own float64 arrays (or their concatenation): the filter reads them, nothing writes them

@@ -114,6 +114,9 @@ def test_samples_as_arrays_and_as_objects_are_the_same_true_samples():
         unit.observe(times[sl], quats[sl], rng)
         batch, objs = unit.last_attitude_samples, unit.last_samples
         assert len(batch) == len(objs) == unit.last_stats["n_attitude_samples"]
+        if len(batch):  # the arrays the filter will read cannot be changed through them
+            assert not (batch.t_s.flags.writeable or batch.q_body_to_icrs.flags.writeable
+                        or batch.covariance_rad2.flags.writeable or batch.n_stars.flags.writeable)
         per_head = unit.last_stats["update_rate_hz_per_head"]
         assert len(objs) == round(sum(per_head) * config.frame_period_s)
         for i, s in enumerate(objs):
